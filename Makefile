@@ -1,0 +1,34 @@
+# pushgrasp: the two commands a user needs are `make run` and `make test`.
+CARGO ?= cargo
+SHARED ?= ../shared
+
+.PHONY: run test bench lint fmt arrangements
+
+# The main job: until training lands, a scripted episode on a random scene, with the
+# heightmaps the robot saw written to logs/.
+run:
+	$(CARGO) run --release -- episode --objects 10 --seed 1
+
+# Every test, built optimised (physics in an unoptimised build is too slow to test).
+test:
+	$(CARGO) test --release --workspace
+
+bench:
+	$(CARGO) run --release -- bench sim
+
+lint:
+	$(CARGO) fmt --all -- --check
+	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+
+fmt:
+	$(CARGO) fmt --all
+
+# Regenerates configs/arrangements/ from the paper's ten challenging cases and goal slots.
+CASES := 00:4 01:7 02:8 03:7 04:7 05:3 06:1 07:7 08:5 09:9
+arrangements:
+	@for case in $(CASES); do \
+		n=$${case%%:*}; goal=$${case##*:}; \
+		$(CARGO) run --release -q -- scene convert \
+			$(SHARED)/reference/test-cases/Efficient_goal-oriented_push-grasping_synergy/test-10-obj-$$n.txt \
+			--goal-slot $$goal --name challenging-$$n > configs/arrangements/challenging-$$n.toml || exit 1; \
+	done

@@ -1,0 +1,261 @@
+//! Arrangement files: designed scenes, in the original test-case format or our own TOML.
+//!
+//! The original format has one line per object slot, `<mesh.obj> R G B x y z rx ry rz`: RGB
+//! in [0, 1], position in metres in the original world frame, Euler angles in radians applied
+//! about x, then y, then z of the moving frame (V-REP's convention). The line index is the
+//! slot; object ids are slot + 1, so the paper's goal slot g is object g + 1. Objects parked
+//! off the workspace are left out.
+//!
+//! Our TOML format also names the goal:
+//!
+//! ```toml
+//! name = "challenging-00"
+//! goal = 5
+//!
+//! [[objects]]
+//! id = 5
+//! shape = "cube"
+//! colour = [89, 161, 79]
+//! position = [-0.6398, 0.1028, 0.0260]
+//! euler_xyz = [-1.5746, -1.0274, 3.1371]
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use rapier3d::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::catalogue::ShapeKind;
+use crate::error::ArrangementError;
+use crate::tabletop::ObjectId;
+use crate::workspace;
+
+/// Options for reading the original format.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OriginalOptions {
+    /// Add 0.1 m to y, as the authors' loader does (the VPG loader does not).
+    pub y_offset: bool,
+}
+
+/// The y shift of the authors' loader.
+const AUTHORS_Y_OFFSET: f32 = 0.1;
+/// Objects farther than this below or above the table are parked, not part of the scene.
+const PARKED_Z: f32 = 1.0;
+
+/// A designed scene.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Arrangement {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// The goal object, if the file names one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub goal: Option<ObjectId>,
+    pub objects: Vec<PlacedObject>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlacedObject {
+    pub id: ObjectId,
+    pub shape: ShapeKind,
+    pub colour: [u8; 3],
+    /// Centre of the shape's bounding box, metres, original world frame.
+    pub position: [f32; 3],
+    /// Radians about x, then y, then z of the moving frame.
+    #[serde(default)]
+    pub euler_xyz: [f32; 3],
+}
+
+impl PlacedObject {
+    pub fn pose(&self) -> Pose {
+        let [a, b, c] = self.euler_xyz;
+        let rotation = Rotation::from_rotation_x(a)
+            * Rotation::from_rotation_y(b)
+            * Rotation::from_rotation_z(c);
+        Pose::from_parts(Vector::from_array(self.position), rotation)
+    }
+}
+
+impl Arrangement {
+    /// Reads a file: `.toml` as our format, anything else as the original format.
+    pub fn read(path: &Path, options: &OriginalOptions) -> Result<Self, ArrangementError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ArrangementError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        if path.extension().is_some_and(|e| e == "toml") {
+            Self::parse_toml(&text, path)
+        } else {
+            Self::parse_original(&text, path, options)
+        }
+    }
+
+    /// Parses the original test-case format; `path` names the source in errors.
+    pub fn parse_original(
+        text: &str,
+        path: &Path,
+        options: &OriginalOptions,
+    ) -> Result<Self, ArrangementError> {
+        const FIELDS: [&str; 10] = [
+            "mesh", "red", "green", "blue", "x", "y", "z", "rx", "ry", "rz",
+        ];
+        let at = |line: usize, message: String| ArrangementError::Line {
+            path: path.to_path_buf(),
+            line,
+            message,
+        };
+        let mut objects = Vec::new();
+        for (index, content) in text.lines().enumerate() {
+            let line = index + 1;
+            let fields: Vec<&str> = content.split_whitespace().collect();
+            if fields.len() != FIELDS.len() {
+                return Err(at(
+                    line,
+                    format!(
+                        "expected 10 fields `<mesh.obj> R G B x y z rx ry rz`, found {}",
+                        fields.len()
+                    ),
+                ));
+            }
+            let shape = ShapeKind::from_mesh_name(fields[0]).ok_or_else(|| {
+                let known: Vec<&str> = ShapeKind::ALL.iter().map(|k| k.mesh_name()).collect();
+                at(
+                    line,
+                    format!(
+                        "mesh `{}` is not in the catalogue (known: {})",
+                        fields[0],
+                        known.join(", ")
+                    ),
+                )
+            })?;
+            let mut numbers = [0.0f32; 9];
+            for (i, value) in numbers.iter_mut().enumerate() {
+                let field = fields[i + 1];
+                *value = field
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| {
+                        at(
+                            line,
+                            format!(
+                                "field `{}` is not a finite number: `{field}`",
+                                FIELDS[i + 1]
+                            ),
+                        )
+                    })?;
+            }
+            if let Some(i) = numbers[..3].iter().position(|c| !(0.0..=1.0).contains(c)) {
+                return Err(at(
+                    line,
+                    format!(
+                        "colour field `{}` = {} is outside [0, 1]",
+                        FIELDS[i + 1],
+                        numbers[i]
+                    ),
+                ));
+            }
+            let id = ObjectId::try_from(line)
+                .map_err(|_| at(line, "more than 255 object slots".to_string()))?;
+            let mut position = [numbers[3], numbers[4], numbers[5]];
+            if options.y_offset {
+                position[1] += AUTHORS_Y_OFFSET;
+            }
+            if position[2].abs() > PARKED_Z || !workspace::contains(position[0], position[1]) {
+                continue;
+            }
+            objects.push(PlacedObject {
+                id,
+                shape,
+                colour: [0, 1, 2].map(|i| (numbers[i] * 255.0).round() as u8),
+                position,
+                euler_xyz: [numbers[6], numbers[7], numbers[8]],
+            });
+        }
+        Ok(Self {
+            name: path.file_stem().map(|s| s.to_string_lossy().into_owned()),
+            goal: None,
+            objects,
+        })
+    }
+
+    /// Parses our TOML format; `path` names the source in errors.
+    pub fn parse_toml(text: &str, path: &Path) -> Result<Self, ArrangementError> {
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct File {
+            name: Option<String>,
+            goal: Option<toml::Spanned<ObjectId>>,
+            objects: Vec<toml::Spanned<PlacedObject>>,
+        }
+        let file: File = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| line_of(text, s.start));
+            match line {
+                Some(line) => ArrangementError::Line {
+                    path: path.to_path_buf(),
+                    line,
+                    message: e.message().to_string(),
+                },
+                None => ArrangementError::File {
+                    path: path.to_path_buf(),
+                    message: e.message().to_string(),
+                },
+            }
+        })?;
+        let at = |offset: usize, message: String| ArrangementError::Line {
+            path: PathBuf::from(path),
+            line: line_of(text, offset),
+            message,
+        };
+        let mut objects: Vec<PlacedObject> = Vec::with_capacity(file.objects.len());
+        for spanned in file.objects {
+            let start = spanned.span().start;
+            let object = spanned.into_inner();
+            if object.id == 0 {
+                return Err(at(
+                    start,
+                    "object id 0 is the table; ids are 1..=255".into(),
+                ));
+            }
+            if objects.iter().any(|o| o.id == object.id) {
+                return Err(at(start, format!("object id {} appears twice", object.id)));
+            }
+            if object
+                .position
+                .iter()
+                .chain(&object.euler_xyz)
+                .any(|v| !v.is_finite())
+            {
+                return Err(at(
+                    start,
+                    format!("object {} has a non-finite pose", object.id),
+                ));
+            }
+            objects.push(object);
+        }
+        let goal = match file.goal {
+            Some(goal) if !objects.iter().any(|o| o.id == *goal.get_ref()) => {
+                return Err(at(
+                    goal.span().start,
+                    format!("goal {} is not one of the objects", goal.get_ref()),
+                ));
+            }
+            goal => goal.map(|g| g.into_inner()),
+        };
+        Ok(Self {
+            name: file.name,
+            goal,
+            objects,
+        })
+    }
+
+    /// The arrangement in our TOML format.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("arrangements always serialise")
+    }
+}
+
+/// The 1-based line holding a byte offset.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}

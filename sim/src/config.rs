@@ -1,0 +1,53 @@
+//! The tabletop's settings, every one visible and overridable from a TOML config.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::SimError;
+use crate::workspace::PixelGrid;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Heightmap pixel size in metres: 0.002 gives 224 x 224 (the paper), 0.004 gives 112 x 112.
+    pub pixel_size: f32,
+    /// Physics steps per simulated second.
+    pub physics_hz: f32,
+    /// Upper bound on settling after a drop or an action, in simulated seconds.
+    pub settle_max_s: f32,
+    /// Push length along the push angle (metres).
+    pub push_length: f32,
+    /// How far a grasp lifts before it is judged (metres).
+    pub grasp_lift: f32,
+    /// Height random drops start from (metres above the table).
+    pub drop_height: f32,
+    /// Side of the central square random drops land in (metres).
+    pub drop_square: f32,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            pixel_size: 0.002,
+            physics_hz: 240.0,
+            settle_max_s: 2.0,
+            push_length: 0.13,
+            grasp_lift: 0.15,
+            drop_height: 0.15,
+            drop_square: 0.248,
+        }
+    }
+}
+
+impl SimConfig {
+    /// The default with another pixel size (0.004 for CPU runs).
+    pub fn with_pixel_size(pixel_size: f32) -> Self {
+        Self {
+            pixel_size,
+            ..Self::default()
+        }
+    }
+
+    pub fn grid(&self) -> Result<PixelGrid, SimError> {
+        PixelGrid::new(self.pixel_size)
+    }
+}

@@ -1,0 +1,30 @@
+//! The tabletop world pushgrasp learns in: a headless rapier scene of toy blocks on a table,
+//! a top-down heightmap camera computed exactly from the geometry, physically simulated push
+//! and grasp primitives, and the scene measurements the rewards need.
+//!
+//! Coordinates follow the original work: metres, z up, the table surface at z = 0 and the
+//! workspace x in [-0.724, -0.276], y in [-0.224, 0.224]. Heightmap rows index y and columns
+//! index x. This crate knows nothing of learning or transport.
+
+pub mod arrangement;
+pub mod camera;
+pub mod catalogue;
+pub mod config;
+pub mod error;
+mod gripper;
+pub mod measure;
+pub mod primitives;
+pub mod scene;
+pub mod tabletop;
+pub mod workspace;
+
+pub use arrangement::{Arrangement, OriginalOptions, PlacedObject};
+pub use camera::{Camera, Heightmaps};
+pub use catalogue::{SLOT_COLOURS, ShapeKind};
+pub use config::SimConfig;
+pub use error::{ArrangementError, SimError};
+pub use primitives::{Action, ActionOutcome, Primitive, ROTATIONS};
+pub use rapier3d;
+pub use scene::SceneReport;
+pub use tabletop::{ObjectId, ObjectView, SettleReport, Tabletop};
+pub use workspace::PixelGrid;

@@ -1,0 +1,260 @@
+//! The push and grasp primitives: a pixel and a rotation index in, a physically simulated
+//! motion of the gripper, an outcome out. Nothing is teleported or attached: a grasp holds
+//! what friction between the fingers holds.
+
+use std::f32::consts::PI;
+
+use rapier3d::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Heightmaps;
+use crate::error::SimError;
+use crate::gripper::MAX_OPENING;
+use crate::tabletop::{ObjectId, Tabletop};
+use crate::workspace;
+
+/// Number of gripper rotations; rotation k is the angle k * 22.5 degrees, counter-clockwise
+/// from +x seen from above.
+pub const ROTATIONS: u8 = 16;
+
+/// Push: the local surface height is the highest point within this half-width of the start
+/// (the original's 11 x 11 window at 2 mm, half a finger width)...
+const PUSH_WINDOW_HALF: f32 = 0.01;
+/// ...and the fingertips go 2 cm below it, then 2.6 cm up: 6 mm above it.
+const PUSH_TIP_ABOVE_SURFACE: f32 = -0.02 + 0.026;
+/// Grasp: the tool centre goes 4 cm below the surface at the pixel, but no lower than 2 cm
+/// above the table...
+const GRASP_DEPTH: f32 = 0.04;
+const GRASP_MIN_HEIGHT: f32 = 0.02;
+/// ...and the tool centre sits this far above the fingertips' lower end.
+const TOOL_CENTRE_ABOVE_TIPS: f32 = 0.01;
+/// Where each motion starts above its working height.
+const APPROACH_HEIGHT: f32 = 0.10;
+/// Tool speeds (m/s).
+const DESCEND_SPEED: f32 = 0.5;
+const PUSH_SPEED: f32 = 0.25;
+const LIFT_SPEED: f32 = 0.5;
+/// Jaw closing time limit (s), and the finger speed below which the jaws have stopped.
+const CLOSE_MAX_S: f32 = 0.3;
+const CLOSE_STOPPED_SPEED: f32 = 0.002;
+/// Time held still after the lift before the grasp is judged (s).
+const HOLD_S: f32 = 0.1;
+/// An object is held if it touches both fingers and rose at least this much.
+const HELD_MIN_RISE: f32 = 0.05;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Primitive {
+    Push,
+    Grasp,
+}
+
+/// An action as the policy picks it: a primitive at a heightmap pixel and a rotation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct Action {
+    pub primitive: Primitive,
+    pub rotation: u8,
+    pub row: usize,
+    pub col: usize,
+}
+
+impl Action {
+    /// The action's angle in radians.
+    pub fn angle(&self) -> f32 {
+        self.rotation as f32 * 2.0 * PI / ROTATIONS as f32
+    }
+}
+
+/// What an action did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ActionOutcome {
+    /// For a grasp: the object held after the lift (success), which has left the scene.
+    pub grasped: Option<ObjectId>,
+    /// Gap between the fingers after the lift (grasps; metres).
+    pub final_opening: f32,
+    /// Tool path: where the fingertips started and ended the working motion.
+    pub start: [f32; 3],
+    pub end: [f32; 3],
+    /// Objects that left the table during the action or the settle after it.
+    pub removed: Vec<ObjectId>,
+    /// Physics steps the action took, settle included.
+    pub physics_steps: u32,
+    /// Whether the scene came to rest afterwards within the settle bound.
+    pub settled: bool,
+}
+
+impl ActionOutcome {
+    pub fn grasp_succeeded(&self) -> bool {
+        self.grasped.is_some()
+    }
+}
+
+impl Tabletop {
+    /// Executes an action chosen on `observation`, which must be a rendering of this scene on
+    /// this tabletop's grid (the heights at the pixel set the working height, as the
+    /// original's).
+    pub fn act(
+        &mut self,
+        action: &Action,
+        observation: &Heightmaps,
+    ) -> Result<ActionOutcome, SimError> {
+        let grid = self.grid();
+        if observation.grid != grid {
+            return Err(SimError::GridMismatch {
+                got: observation.side(),
+                want: grid.side(),
+            });
+        }
+        if action.rotation >= ROTATIONS {
+            return Err(SimError::Rotation(action.rotation));
+        }
+        if action.row >= grid.side() || action.col >= grid.side() {
+            return Err(SimError::Pixel {
+                row: action.row,
+                col: action.col,
+                side: grid.side(),
+            });
+        }
+        let steps_before = self.physics_steps();
+        let mut outcome = match action.primitive {
+            Primitive::Push => self.push(action, observation),
+            Primitive::Grasp => self.grasp(action, observation),
+        };
+        self.gripper.park(&mut self.world);
+        let settle = self.settle();
+        outcome.removed.extend(settle.removed);
+        outcome.settled = settle.at_rest;
+        outcome.physics_steps = (self.physics_steps() - steps_before) as u32;
+        Ok(outcome)
+    }
+
+    fn push(&mut self, action: &Action, observation: &Heightmaps) -> ActionOutcome {
+        let grid = self.grid();
+        let [x, y] = grid.pixel_centre(action.row, action.col);
+        let half = (PUSH_WINDOW_HALF / grid.pixel_size()).round() as usize;
+        let mut surface: f32 = 0.0;
+        for row in action.row.saturating_sub(half)..=(action.row + half).min(grid.side() - 1) {
+            for col in action.col.saturating_sub(half)..=(action.col + half).min(grid.side() - 1) {
+                surface = surface.max(observation.height[observation.index(row, col)]);
+            }
+        }
+        let z = surface + PUSH_TIP_ABOVE_SURFACE;
+        let angle = action.angle();
+        let length = self.config().push_length;
+        let start = Vector::new(x, y, z);
+        let end = Vector::new(
+            (x + length * angle.cos()).clamp(workspace::X_MIN, workspace::X_MAX),
+            (y + length * angle.sin()).clamp(workspace::Y_MIN, workspace::Y_MAX),
+            z,
+        );
+        let rotation = Rotation::from_rotation_z(angle);
+        let above = Vector::new(x, y, z + APPROACH_HEIGHT);
+        self.gripper
+            .place(&mut self.world, Pose::from_parts(above, rotation), 0.0);
+        self.move_tool(start, rotation, DESCEND_SPEED);
+        self.move_tool(end, rotation, PUSH_SPEED);
+        self.move_tool(end + Vector::Z * APPROACH_HEIGHT, rotation, LIFT_SPEED);
+        let removed = self.remove_fallen();
+        ActionOutcome {
+            start: start.to_array(),
+            end: end.to_array(),
+            removed,
+            ..ActionOutcome::default()
+        }
+    }
+
+    fn grasp(&mut self, action: &Action, observation: &Heightmaps) -> ActionOutcome {
+        let grid = self.grid();
+        let [x, y] = grid.pixel_centre(action.row, action.col);
+        let surface = observation.height[observation.index(action.row, action.col)];
+        let z = (surface - GRASP_DEPTH).max(GRASP_MIN_HEIGHT) - TOOL_CENTRE_ABOVE_TIPS;
+        let rotation = Rotation::from_rotation_z(action.angle());
+        let above = Vector::new(x, y, z + APPROACH_HEIGHT);
+        self.gripper.place(
+            &mut self.world,
+            Pose::from_parts(above, rotation),
+            MAX_OPENING,
+        );
+        let start = Vector::new(x, y, z);
+        self.move_tool(start, rotation, DESCEND_SPEED);
+
+        // Close: squeeze towards a negative gap so the motor presses with its full force.
+        self.gripper.command_opening(&mut self.world, -0.01);
+        let close_steps = self.seconds_to_steps(CLOSE_MAX_S);
+        for i in 0..close_steps {
+            self.gripper
+                .drive_to(&mut self.world, Pose::from_parts(start, rotation));
+            self.step();
+            if i > 5 && self.gripper.finger_speed(&self.world) < CLOSE_STOPPED_SPEED {
+                break;
+            }
+        }
+        let heights_before: Vec<(ObjectId, f32)> = self
+            .objects()
+            .map(|o| (o.id, o.pose.translation.z))
+            .collect();
+        let lift = self.config().grasp_lift;
+        let lifted = start + Vector::Z * lift;
+        self.move_tool(lifted, rotation, LIFT_SPEED);
+        for _ in 0..self.seconds_to_steps(HOLD_S) {
+            self.gripper
+                .drive_to(&mut self.world, Pose::from_parts(lifted, rotation));
+            self.step();
+        }
+
+        let final_opening = self.gripper.opening(&self.world);
+        let grasped = self.held_object(&heights_before);
+        if let Some(id) = grasped {
+            self.remove_object(id);
+        }
+        self.gripper.command_opening(&mut self.world, MAX_OPENING);
+        let removed = self.remove_fallen();
+        ActionOutcome {
+            grasped,
+            final_opening,
+            start: start.to_array(),
+            end: lifted.to_array(),
+            removed,
+            ..ActionOutcome::default()
+        }
+    }
+
+    /// The object between the fingers: touching both and lifted; the highest if several.
+    fn held_object(&self, heights_before: &[(ObjectId, f32)]) -> Option<ObjectId> {
+        let [a, b] = self.gripper.touching(&self.world);
+        let on_a: Vec<ObjectId> = a
+            .iter()
+            .filter_map(|&c| self.object_of_collider(c))
+            .collect();
+        b.iter()
+            .filter_map(|&c| self.object_of_collider(c))
+            .filter(|id| on_a.contains(id))
+            .filter_map(|id| {
+                let before = heights_before.iter().find(|(i, _)| *i == id)?.1;
+                let now = self.object_translation(id)?.z;
+                (now - before >= HELD_MIN_RISE).then_some((id, now))
+            })
+            .max_by(|p, q| p.1.total_cmp(&q.1))
+            .map(|(id, _)| id)
+    }
+
+    /// Moves the tool in a straight line at a speed, position-controlled as the original's
+    /// arm: what is in the way is pushed aside.
+    fn move_tool(&mut self, target: Vector, rotation: Rotation, speed: f32) {
+        let from = self.gripper.tool_pose(&self.world).translation;
+        let distance = (target - from).length();
+        let steps = ((distance / speed) * self.config().physics_hz)
+            .ceil()
+            .max(1.0) as u32;
+        for i in 1..=steps {
+            let at = from.lerp(target, i as f32 / steps as f32);
+            self.gripper
+                .drive_to(&mut self.world, Pose::from_parts(at, rotation));
+            self.step();
+        }
+    }
+
+    fn seconds_to_steps(&self, seconds: f32) -> u32 {
+        (seconds * self.config().physics_hz).ceil() as u32
+    }
+}

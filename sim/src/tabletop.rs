@@ -1,0 +1,249 @@
+//! The rapier world: a table, the objects on it, and the gripper.
+
+use std::time::{Duration, Instant};
+
+use rapier3d::prelude::*;
+
+use crate::catalogue::{BLOCK_DENSITY, BLOCK_FRICTION, ShapeKind};
+use crate::config::SimConfig;
+use crate::error::SimError;
+use crate::gripper::Gripper;
+use crate::workspace::{self, PixelGrid};
+
+/// An object's id: 1..=255, 0 is the table in the id heightmap.
+pub type ObjectId = u8;
+
+/// Collision groups: the gripper touches the table and the objects but not itself.
+pub(crate) const TABLE_GROUP: Group = Group::GROUP_1;
+pub(crate) const OBJECT_GROUP: Group = Group::GROUP_2;
+pub(crate) const GRIPPER_GROUP: Group = Group::GROUP_3;
+
+/// Speeds below which an object counts as at rest, and for how many steps in a row.
+const REST_LINEAR: f32 = 0.005;
+const REST_ANGULAR: f32 = 0.05;
+const REST_STEPS: u32 = 12;
+/// Below this height an object has fallen off the table.
+const FALLEN_Z: f32 = -0.02;
+
+struct Object {
+    id: ObjectId,
+    kind: ShapeKind,
+    colour: [u8; 3],
+    body: RigidBodyHandle,
+}
+
+/// What the camera and the reports see of an object.
+#[derive(Clone, Copy, Debug)]
+pub struct ObjectView {
+    pub id: ObjectId,
+    pub kind: ShapeKind,
+    pub colour: [u8; 3],
+    pub pose: Pose,
+}
+
+/// How a settle went: the steps it took, whether everything came to rest within the bound,
+/// and which objects left the table (and were removed).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SettleReport {
+    pub steps: u32,
+    pub at_rest: bool,
+    pub removed: Vec<ObjectId>,
+}
+
+/// The tabletop world. Same construction and the same calls give the same result, bit for
+/// bit, on the same build (rapier runs single-threaded here).
+pub struct Tabletop {
+    config: SimConfig,
+    grid: PixelGrid,
+    pub(crate) world: PhysicsWorld,
+    objects: Vec<Object>,
+    pub(crate) gripper: Gripper,
+    physics_steps: u64,
+    physics_time: Duration,
+}
+
+impl Tabletop {
+    /// An empty table with the gripper parked above it.
+    pub fn new(config: &SimConfig) -> Result<Self, SimError> {
+        let grid = config.grid()?;
+        let mut world = PhysicsWorld::new();
+        world.gravity = Vector::new(0.0, 0.0, -9.81);
+        world.integration_parameters.dt = 1.0 / config.physics_hz;
+        // Objects are 5 cm: the default unit of 1 m leaves contacts stale and lets fingers
+        // sink into objects.
+        world.integration_parameters.length_unit = 0.1;
+
+        let half = workspace::SIDE / 2.0;
+        world.insert(
+            RigidBodyBuilder::fixed().translation(Vector::new(
+                workspace::CENTRE[0],
+                workspace::CENTRE[1],
+                -0.05,
+            )),
+            ColliderBuilder::cuboid(half, half, 0.05)
+                .friction(BLOCK_FRICTION)
+                .collision_groups(InteractionGroups::new(
+                    TABLE_GROUP,
+                    OBJECT_GROUP | GRIPPER_GROUP,
+                    InteractionTestMode::And,
+                )),
+        );
+        let gripper = Gripper::new(&mut world);
+        Ok(Self {
+            config: config.clone(),
+            grid,
+            world,
+            objects: Vec::new(),
+            gripper,
+            physics_steps: 0,
+            physics_time: Duration::ZERO,
+        })
+    }
+
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    pub fn grid(&self) -> PixelGrid {
+        self.grid
+    }
+
+    /// Adds a block at rest at the given pose.
+    pub fn add_object(
+        &mut self,
+        id: ObjectId,
+        kind: ShapeKind,
+        colour: [u8; 3],
+        pose: Pose,
+    ) -> Result<(), SimError> {
+        if id == 0 || self.objects.len() >= 255 {
+            return Err(SimError::TooManyObjects(self.objects.len() + 1));
+        }
+        let shapes: Vec<(Pose, SharedShape)> = kind
+            .parts()
+            .iter()
+            .map(|part| {
+                let hull = SharedShape::convex_hull(&part.vertices)
+                    .expect("catalogue parts are non-degenerate");
+                (Pose::IDENTITY, hull)
+            })
+            .collect();
+        let collider = ColliderBuilder::compound(shapes)
+            .density(BLOCK_DENSITY)
+            .friction(BLOCK_FRICTION)
+            .collision_groups(InteractionGroups::new(
+                OBJECT_GROUP,
+                TABLE_GROUP | OBJECT_GROUP | GRIPPER_GROUP,
+                InteractionTestMode::And,
+            ));
+        let (body, _) = self
+            .world
+            .insert(RigidBodyBuilder::dynamic().pose(pose), collider);
+        self.objects.push(Object {
+            id,
+            kind,
+            colour,
+            body,
+        });
+        Ok(())
+    }
+
+    /// The objects on the table, in insertion order.
+    pub fn objects(&self) -> impl Iterator<Item = ObjectView> + '_ {
+        self.objects.iter().map(|o| ObjectView {
+            id: o.id,
+            kind: o.kind,
+            colour: o.colour,
+            pose: *self.world.bodies[o.body].position(),
+        })
+    }
+
+    pub fn object(&self, id: ObjectId) -> Option<ObjectView> {
+        self.objects().find(|o| o.id == id)
+    }
+
+    pub fn object_count(&self) -> usize {
+        self.objects.len()
+    }
+
+    /// Physics steps taken since construction.
+    pub fn physics_steps(&self) -> u64 {
+        self.physics_steps
+    }
+
+    /// Wall-clock time spent inside rapier's step since construction (what is left of an
+    /// action's time is the primitives' own work).
+    pub fn physics_time(&self) -> Duration {
+        self.physics_time
+    }
+
+    /// One physics step.
+    pub fn step(&mut self) {
+        let start = Instant::now();
+        self.world.step();
+        self.physics_time += start.elapsed();
+        self.physics_steps += 1;
+    }
+
+    /// Steps until every object has been at rest for a few steps in a row, at most
+    /// `settle_max_s`, then removes the objects that left the table.
+    pub fn settle(&mut self) -> SettleReport {
+        let max_steps = (self.config.settle_max_s * self.config.physics_hz).ceil() as u32;
+        let mut quiet = 0;
+        let mut steps = 0;
+        while steps < max_steps && quiet < REST_STEPS {
+            self.step();
+            steps += 1;
+            quiet = if self.all_at_rest() { quiet + 1 } else { 0 };
+        }
+        SettleReport {
+            steps,
+            at_rest: quiet >= REST_STEPS,
+            removed: self.remove_fallen(),
+        }
+    }
+
+    fn all_at_rest(&self) -> bool {
+        self.objects.iter().all(|o| {
+            let body = &self.world.bodies[o.body];
+            body.is_sleeping()
+                || (body.linvel().length() < REST_LINEAR && body.angvel().length() < REST_ANGULAR)
+        })
+    }
+
+    /// Removes objects whose centre is no longer over the table, and returns their ids.
+    pub(crate) fn remove_fallen(&mut self) -> Vec<ObjectId> {
+        let fallen: Vec<ObjectId> = self
+            .objects()
+            .filter(|o| {
+                let t = o.pose.translation;
+                t.z < FALLEN_Z || !workspace::contains(t.x, t.y)
+            })
+            .map(|o| o.id)
+            .collect();
+        for &id in &fallen {
+            self.remove_object(id);
+        }
+        fallen
+    }
+
+    /// Takes an object out of the world (after a grasp, or when it fell off).
+    pub fn remove_object(&mut self, id: ObjectId) -> bool {
+        let Some(index) = self.objects.iter().position(|o| o.id == id) else {
+            return false;
+        };
+        let object = self.objects.remove(index);
+        self.world.remove_body(object.body);
+        true
+    }
+
+    /// The id of the object a collider belongs to, if any.
+    pub(crate) fn object_of_collider(&self, collider: ColliderHandle) -> Option<ObjectId> {
+        let body = self.world.colliders[collider].parent()?;
+        self.objects.iter().find(|o| o.body == body).map(|o| o.id)
+    }
+
+    pub(crate) fn object_translation(&self, id: ObjectId) -> Option<Vector> {
+        self.object(id).map(|o| o.pose.translation)
+    }
+}

@@ -1,0 +1,211 @@
+//! `pushgrasp episode`: a scripted episode on a random scene, so a person can see the whole
+//! simulator at work before any learning: grasp the goal across its narrow side, push along
+//! it when grasps fail, and write every observation as PNGs with a JSON summary.
+
+use std::f32::consts::PI;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use sim::measure::{detect_change, occupancy_ratio};
+use sim::{Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop};
+
+use crate::pictures;
+
+#[derive(Args)]
+pub struct EpisodeArgs {
+    /// Objects dropped on the table.
+    #[arg(long, default_value_t = 10)]
+    objects: usize,
+    /// Scene and goal seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Heightmap pixel size in metres.
+    #[arg(long, default_value_t = 0.002)]
+    pixel_size: f32,
+    /// Actions before the episode gives up.
+    #[arg(long, default_value_t = 10)]
+    max_actions: usize,
+    /// Output directory (default: logs/episode-seed<S>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct StepRecord {
+    step: usize,
+    action: Action,
+    grasped: Option<ObjectId>,
+    removed: Vec<ObjectId>,
+    occupancy_before: f32,
+    occupancy_after: f32,
+    change_detected: Option<bool>,
+    physics_steps: u32,
+}
+
+#[derive(Serialize)]
+struct EpisodeRecord {
+    seed: u64,
+    objects: usize,
+    goal: ObjectId,
+    goal_grasped: bool,
+    steps: Vec<StepRecord>,
+}
+
+pub fn run(args: &EpisodeArgs) -> Result<()> {
+    let config = SimConfig::with_pixel_size(args.pixel_size);
+    let (mut tabletop, report) = Tabletop::random(&config, args.objects, args.seed)?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("logs/episode-seed{}", args.seed)));
+    let camera = Camera::new(tabletop.grid());
+    let mut observation = camera.render(&tabletop);
+    let visible = observation.visible_ids();
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
+    let goal = *visible
+        .get(rng.random_range(0..visible.len().max(1)))
+        .context("no object stayed on the table")?;
+    println!(
+        "scene: {} objects dropped (seed {}), {} left the table; goal: object {goal}",
+        report.dropped.len(),
+        args.seed,
+        report.settle.removed.len()
+    );
+
+    let mut steps = Vec::new();
+    let mut failed_grasps = 0;
+    let mut goal_grasped = false;
+    for step in 0..args.max_actions {
+        pictures::write_heightmaps(&observation, &out, &format!("step{step:02}"))?;
+        let Some(shape) = MaskShape::of(&observation, goal) else {
+            println!("step {step}: the goal is hidden or gone; stopping");
+            break;
+        };
+        let action = if failed_grasps < 2 {
+            shape.grasp()
+        } else {
+            shape.push(&observation)
+        };
+        let outcome = tabletop.act(&action, &observation)?;
+        let after = camera.render(&tabletop);
+        let change = (action.primitive == Primitive::Push)
+            .then(|| detect_change(&observation, &after, goal).detected);
+        let record = StepRecord {
+            step,
+            action,
+            grasped: outcome.grasped,
+            removed: outcome.removed.clone(),
+            occupancy_before: occupancy_ratio(&observation, goal),
+            occupancy_after: occupancy_ratio(&after, goal),
+            change_detected: change,
+            physics_steps: outcome.physics_steps,
+        };
+        println!(
+            "step {step}: {:?} at ({}, {}) rotation {} -> grasped {:?}, occupancy {:.2} -> {:.2}{}",
+            action.primitive,
+            action.row,
+            action.col,
+            action.rotation,
+            outcome.grasped,
+            record.occupancy_before,
+            record.occupancy_after,
+            change.map_or(String::new(), |c| format!(", change detected: {c}"))
+        );
+        steps.push(record);
+        observation = after;
+        match outcome.grasped {
+            Some(id) if id == goal => {
+                goal_grasped = true;
+                break;
+            }
+            Some(_) => {}
+            None if action.primitive == Primitive::Grasp => failed_grasps += 1,
+            None => failed_grasps = 0,
+        }
+    }
+    pictures::write_heightmaps(&observation, &out, "final")?;
+    let record = EpisodeRecord {
+        seed: args.seed,
+        objects: args.objects,
+        goal,
+        goal_grasped,
+        steps,
+    };
+    let summary = out.join("episode.json");
+    std::fs::write(&summary, serde_json::to_string_pretty(&record)?)
+        .with_context(|| format!("writing {}", summary.display()))?;
+    println!(
+        "goal grasped: {goal_grasped}; heightmaps and {} written to {}",
+        summary.display(),
+        out.display()
+    );
+    Ok(())
+}
+
+/// Where the goal is seen and which way it is long: centroid and major-axis angle of its mask.
+struct MaskShape {
+    row: usize,
+    col: usize,
+    major_angle: f32,
+}
+
+impl MaskShape {
+    fn of(maps: &Heightmaps, goal: ObjectId) -> Option<Self> {
+        let pixels: Vec<(f32, f32)> = (0..maps.ids.len())
+            .filter(|&i| maps.ids[i] == goal)
+            .map(|i| ((i % maps.side()) as f32, (i / maps.side()) as f32))
+            .collect();
+        if pixels.is_empty() {
+            return None;
+        }
+        let n = pixels.len() as f32;
+        let (cx, cy) = pixels
+            .iter()
+            .fold((0.0, 0.0), |(x, y), p| (x + p.0 / n, y + p.1 / n));
+        let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+        for (x, y) in &pixels {
+            sxx += (x - cx) * (x - cx);
+            syy += (y - cy) * (y - cy);
+            sxy += (x - cx) * (y - cy);
+        }
+        Some(Self {
+            row: cy.round() as usize,
+            col: cx.round() as usize,
+            // Columns run along x and rows along y, so image angles are world angles.
+            major_angle: 0.5 * (2.0 * sxy).atan2(sxx - syy),
+        })
+    }
+
+    fn rotation_of(angle: f32) -> u8 {
+        let step = 2.0 * PI / ROTATIONS as f32;
+        ((angle / step).round() as i32).rem_euclid(ROTATIONS as i32) as u8
+    }
+
+    /// Jaws closing across the narrow side, at the centroid.
+    fn grasp(&self) -> Action {
+        Action {
+            primitive: Primitive::Grasp,
+            rotation: Self::rotation_of(self.major_angle + PI / 2.0),
+            row: self.row,
+            col: self.col,
+        }
+    }
+
+    /// A push along the goal's long axis, starting 6 cm before its centroid.
+    fn push(&self, maps: &Heightmaps) -> Action {
+        let rotation = Self::rotation_of(self.major_angle);
+        let angle = rotation as f32 * 2.0 * PI / ROTATIONS as f32;
+        let back = 0.06 / maps.grid.pixel_size();
+        let clamp = |v: f32| v.round().clamp(0.0, (maps.side() - 1) as f32) as usize;
+        Action {
+            primitive: Primitive::Push,
+            rotation,
+            row: clamp(self.row as f32 - back * angle.sin()),
+            col: clamp(self.col as f32 - back * angle.cos()),
+        }
+    }
+}

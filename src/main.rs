@@ -1,0 +1,41 @@
+//! `pushgrasp`: the command-line program. A thin layer over the workspace's crates; each
+//! subcommand lives in its own module.
+
+mod bench;
+mod episode;
+mod pictures;
+mod scene;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "pushgrasp",
+    version,
+    about = "Learning goal-oriented push-grasping in clutter"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Build scenes, look at them, convert arrangement files.
+    #[command(subcommand)]
+    Scene(scene::SceneCommand),
+    /// Run a scripted episode on a random scene and write what the robot saw to logs/.
+    Episode(episode::EpisodeArgs),
+    /// Measure the hot paths.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Scene(command) => scene::run(command),
+        Command::Episode(args) => episode::run(&args),
+        Command::Bench(command) => bench::run(command),
+    }
+}

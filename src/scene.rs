@@ -1,0 +1,149 @@
+//! `pushgrasp scene`: render scenes to PNGs and convert arrangement files.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand};
+use sim::{Arrangement, Camera, OriginalOptions, SimConfig, Tabletop};
+
+use crate::pictures;
+
+#[derive(Subcommand)]
+pub enum SceneCommand {
+    /// Write PNGs of the colour, height and id heightmaps of a random scene or an arrangement.
+    Render(RenderArgs),
+    /// Convert an original test-case file to our TOML arrangement format (on stdout).
+    Convert(ConvertArgs),
+}
+
+/// Where a scene comes from: random drops or an arrangement file.
+#[derive(Args)]
+pub struct SceneSource {
+    /// Number of objects to drop at random.
+    #[arg(long, default_value_t = 10, conflicts_with = "arrangement")]
+    pub objects: usize,
+    /// Seed of the random scene.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// An arrangement file (original `.txt` format or our `.toml`) instead of random drops.
+    #[arg(long)]
+    pub arrangement: Option<PathBuf>,
+    /// Add the authors' +0.1 m y offset when reading an original-format file.
+    #[arg(long)]
+    pub y_offset: bool,
+    /// Heightmap pixel size in metres (0.002 -> 224 x 224, 0.004 -> 112 x 112).
+    #[arg(long, default_value_t = 0.002)]
+    pub pixel_size: f32,
+}
+
+impl SceneSource {
+    /// Builds the scene, settled, and a one-line description of it.
+    pub fn build(&self) -> Result<(Tabletop, String)> {
+        let config = SimConfig::with_pixel_size(self.pixel_size);
+        match &self.arrangement {
+            Some(path) => {
+                let options = OriginalOptions {
+                    y_offset: self.y_offset,
+                };
+                let arrangement = Arrangement::read(path, &options)?;
+                let mut tabletop = Tabletop::from_arrangement(&config, &arrangement)?;
+                let settle = tabletop.settle();
+                let description = format!(
+                    "arrangement {} ({} objects, goal {:?}, settled in {} steps, left the table: {:?})",
+                    path.display(),
+                    arrangement.objects.len(),
+                    arrangement.goal,
+                    settle.steps,
+                    settle.removed
+                );
+                Ok((tabletop, description))
+            }
+            None => {
+                let (tabletop, report) = Tabletop::random(&config, self.objects, self.seed)?;
+                let description = format!(
+                    "random scene seed {} ({} dropped, settled in {} steps, at rest: {}, left the table: {:?})",
+                    self.seed,
+                    report.dropped.len(),
+                    report.settle.steps,
+                    report.settle.at_rest,
+                    report.settle.removed
+                );
+                Ok((tabletop, description))
+            }
+        }
+    }
+}
+
+#[derive(Args)]
+pub struct RenderArgs {
+    #[command(flatten)]
+    source: SceneSource,
+    /// Directory the PNGs go to.
+    #[arg(long, default_value = "logs/render")]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+pub struct ConvertArgs {
+    /// The original-format file.
+    file: PathBuf,
+    /// The goal's slot (line index from 0, as the paper numbers them).
+    #[arg(long)]
+    goal_slot: Option<u8>,
+    /// Add the authors' +0.1 m y offset.
+    #[arg(long)]
+    y_offset: bool,
+    /// Name written into the file (default: the file's stem).
+    #[arg(long)]
+    name: Option<String>,
+}
+
+pub fn run(command: SceneCommand) -> Result<()> {
+    match command {
+        SceneCommand::Render(args) => render(&args),
+        SceneCommand::Convert(args) => convert(&args),
+    }
+}
+
+fn render(args: &RenderArgs) -> Result<()> {
+    let (tabletop, description) = args.source.build()?;
+    let maps = Camera::new(tabletop.grid()).render(&tabletop);
+    let stem = match &args.source.arrangement {
+        Some(path) => path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "arrangement".into()),
+        None => format!("random-{}-seed{}", args.source.objects, args.source.seed),
+    };
+    println!("{description}");
+    for path in pictures::write_heightmaps(&maps, &args.out, &stem)? {
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+fn convert(args: &ConvertArgs) -> Result<()> {
+    let options = OriginalOptions {
+        y_offset: args.y_offset,
+    };
+    let mut arrangement = Arrangement::read(&args.file, &options)?;
+    if let Some(name) = &args.name {
+        arrangement.name = Some(name.clone());
+    }
+    if let Some(slot) = args.goal_slot {
+        let goal = slot.checked_add(1).context("goal slot out of range")?;
+        if !arrangement.objects.iter().any(|o| o.id == goal) {
+            bail!(
+                "{}: goal slot {slot} is not an object on the table",
+                args.file.display()
+            );
+        }
+        arrangement.goal = Some(goal);
+    }
+    println!(
+        "# Converted from {} by `pushgrasp scene convert`.\n# Ids are the original slots + 1; positions in metres, angles in radians (x, y, z of the moving frame).\n{}",
+        args.file.file_name().unwrap_or_default().to_string_lossy(),
+        arrangement.to_toml()
+    );
+    Ok(())
+}
