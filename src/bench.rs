@@ -203,15 +203,44 @@ fn centroid(maps: &Heightmaps, id: u8) -> Option<((usize, usize), usize)> {
     (n > 0).then(|| ((rows / n, cols / n), n))
 }
 
-fn lone_cube(config: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Tabletop> {
-    let mut tabletop = Tabletop::new(config)?;
+/// Adds cube `id` within 10 cm of the workspace centre with a random yaw, released at
+/// height `z`, and settles.
+fn add_random_cube(tabletop: &mut Tabletop, id: u8, z: f32, rng: &mut ChaCha8Rng) -> Result<()> {
     let x = sim::workspace::CENTRE[0] + rng.random_range(-0.1..0.1);
     let y = sim::workspace::CENTRE[1] + rng.random_range(-0.1..0.1);
     let yaw = rng.random_range(0.0..std::f32::consts::TAU);
-    let pose = Pose::from_parts(Vector::new(x, y, 0.025), Rotation::from_rotation_z(yaw));
-    tabletop.add_object(1, ShapeKind::Cube, sim::SLOT_COLOURS[0], pose)?;
+    let pose = Pose::from_parts(Vector::new(x, y, z), Rotation::from_rotation_z(yaw));
+    tabletop.add_object(id, ShapeKind::Cube, sim::SLOT_COLOURS[0], pose)?;
     tabletop.settle();
+    Ok(())
+}
+
+/// A lone cube resting on the table.
+fn lone_cube(config: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Tabletop> {
+    let mut tabletop = Tabletop::new(config)?;
+    add_random_cube(&mut tabletop, 1, 0.025, rng)?;
     Ok(tabletop)
+}
+
+/// Grasps object `id` at the centroid of its visible pixels at a random rotation, if at least
+/// `min_visible` of its pixels are seen: whether it was the one grasped.
+fn grasp_visible(
+    tabletop: &mut Tabletop,
+    id: u8,
+    min_visible: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<Option<bool>> {
+    let maps = Camera::new(tabletop.grid()).render(tabletop);
+    let Some(((row, col), _)) = centroid(&maps, id).filter(|(_, n)| *n >= min_visible) else {
+        return Ok(None);
+    };
+    let action = Action {
+        primitive: Primitive::Grasp,
+        rotation: rng.random_range(0..ROTATIONS),
+        row,
+        col,
+    };
+    Ok(Some(tabletop.act(&action, &maps)?.grasped == Some(id)))
 }
 
 /// Grasps at a lone cube's centre at random angles: (successes, trials).
@@ -220,52 +249,28 @@ fn isolated_cube_grasps(config: &SimConfig, trials: usize) -> Result<(usize, usi
     for seed in 0..trials as u64 {
         let mut rng = ChaCha8Rng::seed_from_u64(1000 + seed);
         let mut tabletop = lone_cube(config, &mut rng)?;
-        let maps = Camera::new(tabletop.grid()).render(&tabletop);
-        let ((row, col), _) = centroid(&maps, 1).expect("a lone cube is visible");
-        let action = Action {
-            primitive: Primitive::Grasp,
-            rotation: rng.random_range(0..ROTATIONS),
-            row,
-            col,
-        };
-        successes += usize::from(tabletop.act(&action, &maps)?.grasped == Some(1));
+        let grasped = grasp_visible(&mut tabletop, 1, 1, &mut rng)?;
+        successes += usize::from(grasped.expect("a lone cube is visible"));
     }
     Ok((successes, trials))
 }
 
 /// Grasps at the visible centre of a cube dropped last among 10 objects, at random angles,
-/// for scenes where the cube's top is mostly visible: (successes, trials).
+/// in scenes where at least 80% of the cube's top is seen: (successes, trials).
 fn clutter_cube_grasps(config: &SimConfig, trials: usize) -> Result<(usize, usize)> {
     let (mut successes, mut attempts) = (0, 0);
-    let cube_top_pixels = (0.05 / config.pixel_size).powi(2) as usize;
-    let mut seed = 2000;
-    while attempts < trials && seed < 2000 + 10 * trials as u64 {
-        seed += 1;
+    let mostly_visible = (0.8 * (0.05 / config.pixel_size).powi(2)) as usize;
+    for seed in 2000..2000 + 10 * trials as u64 {
+        if attempts == trials {
+            break;
+        }
         let (mut tabletop, _) = Tabletop::random(config, 9, seed)?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let x = sim::workspace::CENTRE[0] + rng.random_range(-0.1..0.1);
-        let y = sim::workspace::CENTRE[1] + rng.random_range(-0.1..0.1);
-        let pose = Pose::from_parts(
-            Vector::new(x, y, config.drop_height),
-            Rotation::from_rotation_z(rng.random_range(0.0..std::f32::consts::TAU)),
-        );
-        tabletop.add_object(10, ShapeKind::Cube, sim::SLOT_COLOURS[9], pose)?;
-        tabletop.settle();
-        let maps = Camera::new(tabletop.grid()).render(&tabletop);
-        let Some(((row, col), visible)) = centroid(&maps, 10) else {
-            continue;
-        };
-        if visible * 10 < cube_top_pixels * 8 {
-            continue;
+        add_random_cube(&mut tabletop, 10, config.drop_height, &mut rng)?;
+        if let Some(grasped) = grasp_visible(&mut tabletop, 10, mostly_visible, &mut rng)? {
+            attempts += 1;
+            successes += usize::from(grasped);
         }
-        attempts += 1;
-        let action = Action {
-            primitive: Primitive::Grasp,
-            rotation: rng.random_range(0..ROTATIONS),
-            row,
-            col,
-        };
-        successes += usize::from(tabletop.act(&action, &maps)?.grasped == Some(10));
     }
     Ok((successes, attempts))
 }
