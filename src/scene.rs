@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use sim::{Arrangement, Camera, OriginalOptions, SimConfig, Tabletop};
 
@@ -131,13 +131,15 @@ fn convert(args: &ConvertArgs) -> Result<()> {
         arrangement.name = Some(name.clone());
     }
     if let Some(slot) = args.goal_slot {
-        let goal = slot.checked_add(1).context("goal slot out of range")?;
-        if !arrangement.objects.iter().any(|o| o.id == goal) {
+        let goal = slot
+            .checked_add(1)
+            .filter(|goal| arrangement.objects.iter().any(|o| o.id == *goal));
+        let Some(goal) = goal else {
             bail!(
                 "{}: goal slot {slot} is not an object on the table",
                 args.file.display()
             );
-        }
+        };
         arrangement.goal = Some(goal);
     }
     println!(

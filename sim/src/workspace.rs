@@ -32,7 +32,11 @@ impl PixelGrid {
     pub fn new(pixel_size: f32) -> Result<Self, SimError> {
         let pixels = SIDE / pixel_size;
         let side = pixels.round();
-        if !pixel_size.is_finite() || pixel_size <= 0.0 || side < 8.0 || (pixels - side).abs() > 1e-3 {
+        if !pixel_size.is_finite()
+            || pixel_size <= 0.0
+            || side < 8.0
+            || (pixels - side).abs() > 1e-3
+        {
             return Err(SimError::PixelSize(pixel_size));
         }
         Ok(Self {

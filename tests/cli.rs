@@ -1,0 +1,184 @@
+//! The `pushgrasp` program end to end: each test runs the built binary as a person would and
+//! checks what it wrote.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use sim::{Arrangement, OriginalOptions};
+
+/// The paper's challenging case 00, when the original files are here.
+fn original_case_00() -> Option<PathBuf> {
+    let cases = std::env::var_os("PUSHGRASP_TEST_CASES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../shared/reference/test-cases"
+            ))
+        });
+    if !cases.is_dir() {
+        eprintln!("skipping: {} not found", cases.display());
+        return None;
+    }
+    Some(cases.join("Efficient_goal-oriented_push-grasping_synergy/test-10-obj-00.txt"))
+}
+
+/// Runs `pushgrasp <args>` from the checkout's root.
+fn pushgrasp(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("pushgrasp runs")
+}
+
+/// Runs `pushgrasp <args>`, which must succeed, and returns its stdout.
+fn pushgrasp_ok(args: &[&str]) -> String {
+    let output = pushgrasp(args);
+    assert!(
+        output.status.success(),
+        "pushgrasp {args:?} failed ({}):\n{}",
+        output.status,
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout).expect("utf-8 output")
+}
+
+/// Runs `pushgrasp <args>`, which must fail, and returns its stderr.
+fn pushgrasp_fails(args: &[&str]) -> String {
+    let output = pushgrasp(args);
+    assert!(
+        !output.status.success(),
+        "pushgrasp {args:?} should have failed; it printed:\n{}",
+        String::from_utf8_lossy(&output.stdout)
+    );
+    String::from_utf8(output.stderr).expect("utf-8 output")
+}
+
+fn path_arg(path: &Path) -> &str {
+    path.to_str().expect("a utf-8 path")
+}
+
+/// The sides of `<stem>-colour.png`, `-height.png` and `-ids.png` in `dir`.
+fn heightmap_sizes(dir: &Path, stem: &str) -> Vec<(u32, u32)> {
+    ["colour", "height", "ids"]
+        .iter()
+        .map(|kind| {
+            let path = dir.join(format!("{stem}-{kind}.png"));
+            let picture = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            (picture.width(), picture.height())
+        })
+        .collect()
+}
+
+#[test]
+fn scene_render_writes_heightmaps_at_the_pixel_size() {
+    // (extra arguments, pixels per side)
+    for (extra, side) in [(&[][..], 224), (&["--pixel-size", "0.004"][..], 112)] {
+        let out = tempfile::tempdir().unwrap();
+        let mut args = vec!["scene", "render", "--objects", "5", "--seed", "3"];
+        args.extend(extra);
+        args.extend(["--out", path_arg(out.path())]);
+        pushgrasp_ok(&args);
+        assert_eq!(
+            heightmap_sizes(out.path(), "random-5-seed3"),
+            vec![(side, side); 3],
+            "{args:?}"
+        );
+    }
+}
+
+#[test]
+fn scene_render_loads_an_arrangement() {
+    let out = tempfile::tempdir().unwrap();
+    pushgrasp_ok(&[
+        "scene",
+        "render",
+        "--arrangement",
+        "configs/arrangements/challenging-04.toml",
+        "--out",
+        path_arg(out.path()),
+    ]);
+    assert_eq!(
+        heightmap_sizes(out.path(), "challenging-04"),
+        vec![(224, 224); 3]
+    );
+}
+
+#[test]
+fn scene_render_reports_a_malformed_arrangement_with_its_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.txt");
+    std::fs::write(
+        &file,
+        "4.obj 0.5 0.5 0.5 -0.5 0.0 0.025 0 0 0\n4.obj 0.5 0.5 0.5 -0.5 0.0\n",
+    )
+    .unwrap();
+    let stderr = pushgrasp_fails(&[
+        "scene",
+        "render",
+        "--arrangement",
+        path_arg(&file),
+        "--out",
+        path_arg(dir.path()),
+    ]);
+    let place = format!("{}:2:", file.display());
+    assert!(
+        stderr.contains(&place),
+        "stderr should name {place}:\n{stderr}"
+    );
+}
+
+#[test]
+fn scene_convert_names_the_goal() {
+    let Some(original) = original_case_00() else {
+        return;
+    };
+    let stdout = pushgrasp_ok(&["scene", "convert", path_arg(&original), "--goal-slot", "4"]);
+    let converted = Arrangement::parse_toml(&stdout, Path::new("converted.toml"))
+        .unwrap_or_else(|e| panic!("{e}\n{stdout}"));
+    assert_eq!(converted.goal, Some(5));
+    let loaded = Arrangement::read(&original, &OriginalOptions::default()).unwrap();
+    assert_eq!(converted.objects, loaded.objects);
+}
+
+#[test]
+fn scene_convert_refuses_a_goal_off_the_table() {
+    let Some(original) = original_case_00() else {
+        return;
+    };
+    let loaded = Arrangement::read(&original, &OriginalOptions::default()).unwrap();
+    assert!(
+        loaded.objects.iter().all(|o| o.id != 1),
+        "slot 0 of {} should be parked off the workspace",
+        original.display()
+    );
+    let stderr = pushgrasp_fails(&["scene", "convert", path_arg(&original), "--goal-slot", "0"]);
+    assert!(
+        stderr.contains("goal slot 0 is not an object on the table"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn episode_writes_its_summary_and_observations() {
+    let out = tempfile::tempdir().unwrap();
+    pushgrasp_ok(&[
+        "episode",
+        "--objects",
+        "6",
+        "--seed",
+        "2",
+        "--max-actions",
+        "3",
+        "--out",
+        path_arg(out.path()),
+    ]);
+    let summary = std::fs::read_to_string(out.path().join("episode.json")).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&summary).unwrap();
+    let goal = summary["goal"].as_u64().expect("a numeric goal");
+    assert!((1..=6).contains(&goal), "goal {goal}");
+    let steps = summary["steps"].as_array().expect("a steps array");
+    assert!((1..=3).contains(&steps.len()), "{} steps", steps.len());
+    assert_eq!(heightmap_sizes(out.path(), "step00"), vec![(224, 224); 3]);
+}
