@@ -231,6 +231,29 @@ fn y_offset_shifts_every_object_by_ten_centimetres() {
 /// A well-formed original-format line.
 const GOOD_LINE: &str = "4.obj 0.5 0.5 0.5 -0.5 0.0 0.025 0 0 0";
 
+/// `error` names `file` and `bad_line`, and its message says `says`.
+fn assert_line_error(
+    error: &ArrangementError,
+    file: &str,
+    bad_line: usize,
+    says: &str,
+    what: &str,
+) {
+    let ArrangementError::Line { line, message, .. } = error else {
+        panic!("{what}: expected a line error, got {error:?}");
+    };
+    assert_eq!(*line, bad_line, "{what}: {error}");
+    assert!(
+        message.contains(says),
+        "{what}: `{error}` should say {says}"
+    );
+    let prefix = format!("{file}:{bad_line}:");
+    assert!(
+        error.to_string().starts_with(&prefix),
+        "{what}: `{error}` should start with {prefix}"
+    );
+}
+
 #[test]
 fn malformed_original_lines_are_reported_with_their_line() {
     // (what is wrong, the file's text, the bad line, what the message must say)
@@ -278,19 +301,7 @@ fn malformed_original_lines_are_reported_with_their_line() {
     for (what, text, bad_line, says) in cases {
         let error = Arrangement::parse_original(&text, path, &options)
             .expect_err(&format!("{what}: should be refused"));
-        let ArrangementError::Line { line, message, .. } = &error else {
-            panic!("{what}: expected a line error, got {error:?}");
-        };
-        assert_eq!(*line, bad_line, "{what}: {error}");
-        assert!(
-            message.contains(says),
-            "{what}: `{error}` should say {says}"
-        );
-        let prefix = format!("bad.txt:{bad_line}:");
-        assert!(
-            error.to_string().starts_with(&prefix),
-            "{what}: `{error}` should start with {prefix}"
-        );
+        assert_line_error(&error, "bad.txt", bad_line, says, what);
     }
 }
 
@@ -352,19 +363,7 @@ fn malformed_toml_is_reported_with_its_line() {
         let text = GOOD_TOML.replace(from, to);
         let error = Arrangement::parse_toml(&text, path)
             .expect_err(&format!("{what}: should be refused:\n{text}"));
-        let ArrangementError::Line { line, message, .. } = &error else {
-            panic!("{what}: expected a line error, got {error:?}");
-        };
-        assert_eq!(*line, bad_line, "{what}: {error}");
-        assert!(
-            message.contains(says),
-            "{what}: `{error}` should say {says}"
-        );
-        let prefix = format!("bad.toml:{bad_line}:");
-        assert!(
-            error.to_string().starts_with(&prefix),
-            "{what}: `{error}` should start with {prefix}"
-        );
+        assert_line_error(&error, "bad.toml", bad_line, says, what);
     }
 }
 
