@@ -16,6 +16,8 @@ pub enum SimError {
     GridMismatch { got: usize, want: usize },
     #[error("too many objects: {0} (object ids are 1..=255)")]
     TooManyObjects(usize),
+    #[error("object id {0} is taken or reserved (0 is the table)")]
+    ObjectId(u8),
     #[error(transparent)]
     Arrangement(#[from] ArrangementError),
 }

@@ -108,7 +108,7 @@ impl Tabletop {
         self.grid
     }
 
-    /// Adds a block at rest at the given pose.
+    /// Adds a block at rest at the given pose; ids are unique and never 0 (the table).
     pub fn add_object(
         &mut self,
         id: ObjectId,
@@ -116,8 +116,8 @@ impl Tabletop {
         colour: [u8; 3],
         pose: Pose,
     ) -> Result<(), SimError> {
-        if id == 0 || self.objects.len() >= 255 {
-            return Err(SimError::TooManyObjects(self.objects.len() + 1));
+        if id == 0 || self.objects.iter().any(|o| o.id == id) {
+            return Err(SimError::ObjectId(id));
         }
         let shapes: Vec<(Pose, SharedShape)> = kind
             .parts()

@@ -261,3 +261,19 @@ fn actions_are_checked() {
     let error = tabletop.act(&action, &small).unwrap_err();
     assert!(error.to_string().contains("112"), "{error}");
 }
+
+#[test]
+fn object_ids_are_unique_and_never_the_tables() {
+    let mut tabletop = Tabletop::new(&SimConfig::default()).unwrap();
+    let pose = Pose::from_translation(Vector::new(CENTRE[0], CENTRE[1], 0.025));
+    tabletop
+        .add_object(3, ShapeKind::Cube, [0, 0, 0], pose)
+        .unwrap();
+    for id in [0, 3] {
+        let error = tabletop
+            .add_object(id, ShapeKind::Cube, [0, 0, 0], pose)
+            .unwrap_err();
+        assert!(error.to_string().contains(&format!("id {id}")), "{error}");
+    }
+    assert_eq!(tabletop.object_count(), 1);
+}
