@@ -1,0 +1,20 @@
+//! The policy side of pushgrasp: what an actor does between the simulator and the networks.
+//!
+//! Q maps reach this crate as plain `f32` arrays ([`QMaps`]), so it has no neural-network
+//! dependency: the actor turns an observation and the push and grasp Q maps into an action
+//! with the paper's hierarchical rule (grasp once the goal's grasp Q exceeds Q*, else push, at
+//! most five pushes) under epsilon-greedy exploration, and scores what happened with the
+//! paper's grasp and push rewards.
+
+pub mod error;
+pub mod policy;
+pub mod qmaps;
+pub mod reward;
+
+pub use error::ActorError;
+pub use policy::{
+    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, choose, grasp_region,
+    valid_push_starts,
+};
+pub use qmaps::QMaps;
+pub use reward::{PUSH_REWARD, Q_IMPROVEMENT, grasp_reward, push_reward};

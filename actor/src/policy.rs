@@ -1,0 +1,240 @@
+//! The hierarchical push-grasp policy: the grasp net is the discriminator (grasp once the
+//! goal's grasp Q exceeds Q*), the push net acts below it (at most five pushes, then a
+//! grasp), and epsilon-greedy exploration draws the chosen primitive's pixel and rotation.
+
+use rand::{Rng, RngExt};
+use serde::{Deserialize, Serialize};
+use sim::{Action, Heightmaps, ObjectId, Primitive, ROTATIONS};
+
+use crate::error::ActorError;
+use crate::qmaps::QMaps;
+
+/// A push may only start where the surface is lower than this (metres): "pushes may not
+/// start on top of an object during training". Every block rests at least 2.5 cm tall, so
+/// only the sloped or rounded fringe of an object can be lower.
+pub const PUSH_START_MAX_HEIGHT: f32 = 0.01;
+
+/// The policy's settings; the defaults are the paper's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PolicyConfig {
+    /// Q*: grasp once the goal's grasp Q exceeds this (just below the 2.0 a reliable grasp
+    /// converges to with gamma = 0.5).
+    pub q_star: f32,
+    /// Pushes allowed in an episode before the grasp is forced.
+    pub max_pushes: usize,
+    /// Exploration rate at iteration 0.
+    pub epsilon_start: f32,
+    /// Exploration rate the decay stops at.
+    pub epsilon_end: f32,
+    /// Factor the exploration rate shrinks by per action. f64: 0.9998 in f32 is off by 2.6e-8,
+    /// which compounds to a relative 2e-4 by the time epsilon reaches its floor.
+    pub epsilon_decay: f64,
+}
+
+impl Default for PolicyConfig {
+    fn default() -> Self {
+        Self {
+            q_star: 1.8,
+            max_pushes: 5,
+            epsilon_start: 0.5,
+            epsilon_end: 0.1,
+            epsilon_decay: 0.9998,
+        }
+    }
+}
+
+impl PolicyConfig {
+    /// The exploration rate after `iteration` actions: max(start * decay^iteration, end), as
+    /// the original's max(0.5 * 0.9998^iteration, 0.1).
+    pub fn epsilon(&self, iteration: u64) -> f32 {
+        // powf: the exponent does not fit powi's i32.
+        let decayed = f64::from(self.epsilon_start) * self.epsilon_decay.powf(iteration as f64);
+        decayed.max(f64::from(self.epsilon_end)) as f32
+    }
+}
+
+/// Which primitives the policy may use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    /// Stage 1 (goal-conditioned grasping): every action is a grasp.
+    GraspOnly,
+    /// Stages 2 and 3 and testing: push until the goal is graspable, then grasp.
+    PushGrasp,
+}
+
+/// Why the policy picked its primitive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Reason {
+    /// Grasp: the mode allows nothing else.
+    GraspOnlyMode,
+    /// Grasp: the goal's grasp Q exceeds Q*.
+    AboveThreshold,
+    /// Grasp: the episode's pushes are used up.
+    PushBudgetSpent,
+    /// Grasp: no push Q maps were given.
+    NoPushMaps,
+    /// Push: the goal's grasp Q is at most Q*.
+    BelowThreshold,
+}
+
+/// What the policy sees at one step.
+#[derive(Clone, Copy, Debug)]
+pub struct PolicyInput<'a> {
+    /// The observation the Q maps were computed on.
+    pub obs: &'a Heightmaps,
+    /// The episode's goal object.
+    pub goal: ObjectId,
+    /// Grasp Q maps for this observation and goal.
+    pub grasp: &'a QMaps,
+    /// Push Q maps, if the push net is in use.
+    pub push: Option<&'a QMaps>,
+    /// Pushes already made in this episode.
+    pub pushes_so_far: usize,
+}
+
+/// The policy's choice and what it was based on.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Decision {
+    /// The action to execute.
+    pub action: Action,
+    /// The Q value of the executed primitive at the executed rotation and pixel (explored or
+    /// not): the value the loss compares with the label.
+    pub predicted_q: f32,
+    /// The highest grasp Q over all rotations inside the grasp region (the goal mask when
+    /// the goal is visible): the discriminator's score, and the "before" of a push reward.
+    pub goal_grasp_q: f32,
+    /// Whether the pixel and rotation were drawn at random rather than the argmax.
+    pub explored: bool,
+    /// Why this primitive.
+    pub reason: Reason,
+    /// Whether the goal was seen from above; when not, the grasp region was every object.
+    pub goal_visible: bool,
+}
+
+/// Where a grasp may go and where the goal's grasp Q is read: the goal mask; if the goal is
+/// hidden, every object pixel (so the policy can uncover it by grasping what lies on top);
+/// if the table is bare, everywhere. Row-major, `side * side`.
+pub fn grasp_region(obs: &Heightmaps, goal: ObjectId) -> Vec<bool> {
+    let mask = obs.goal_mask(goal);
+    if mask.contains(&true) {
+        return mask;
+    }
+    let objects: Vec<bool> = obs.ids.iter().map(|&id| id != 0).collect();
+    if objects.contains(&true) {
+        return objects;
+    }
+    vec![true; obs.ids.len()]
+}
+
+/// Where a push may start: pixels lower than [`PUSH_START_MAX_HEIGHT`], i.e. not on top of
+/// an object; everywhere if the objects cover every pixel. Row-major, `side * side`.
+pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
+    let starts: Vec<bool> = obs
+        .height
+        .iter()
+        .map(|&h| h < PUSH_START_MAX_HEIGHT)
+        .collect();
+    if starts.contains(&true) {
+        starts
+    } else {
+        vec![true; starts.len()]
+    }
+}
+
+/// Picks the next action. Grasp when `mode` is grasp-only, the goal's grasp Q exceeds Q*, the
+/// push budget is spent, or there are no push maps; otherwise push. The primitive goes to
+/// the argmax of its Q maps over its allowed pixels ([`grasp_region`], [`valid_push_starts`])
+/// and all rotations, or, with probability `epsilon`, to a pixel and rotation drawn
+/// uniformly from the same set. Deterministic given `rng`.
+///
+/// Errors if a Q map's shape does not match the observation and [`ROTATIONS`], if the chosen
+/// primitive's Q values are NaN everywhere it may act, or if `epsilon` is not in [0, 1].
+pub fn choose(
+    config: &PolicyConfig,
+    mode: Mode,
+    input: &PolicyInput,
+    epsilon: f32,
+    rng: &mut impl Rng,
+) -> Result<Decision, ActorError> {
+    if !(0.0..=1.0).contains(&epsilon) {
+        return Err(ActorError::Epsilon(epsilon));
+    }
+    let obs = input.obs;
+    check_shape(Primitive::Grasp, input.grasp, obs)?;
+    if let Some(push) = input.push {
+        check_shape(Primitive::Push, push, obs)?;
+    }
+
+    let region = grasp_region(obs, input.goal);
+    let best_grasp = input
+        .grasp
+        .best_where(&region)
+        .ok_or(ActorError::NoQValue(Primitive::Grasp))?;
+    let goal_grasp_q = best_grasp.0;
+    let reason = if mode == Mode::GraspOnly {
+        Reason::GraspOnlyMode
+    } else if goal_grasp_q > config.q_star {
+        Reason::AboveThreshold
+    } else if input.pushes_so_far >= config.max_pushes {
+        Reason::PushBudgetSpent
+    } else if input.push.is_none() {
+        Reason::NoPushMaps
+    } else {
+        Reason::BelowThreshold
+    };
+
+    let (primitive, maps, allowed, best) = match input.push {
+        Some(push) if reason == Reason::BelowThreshold => {
+            let starts = valid_push_starts(obs);
+            let best = push
+                .best_where(&starts)
+                .ok_or(ActorError::NoQValue(Primitive::Push))?;
+            (Primitive::Push, push, starts, best)
+        }
+        _ => (Primitive::Grasp, input.grasp, region, best_grasp),
+    };
+
+    // The coin is drawn even at epsilon 0: a greedy step always takes exactly one draw.
+    let explored = rng.random::<f32>() < epsilon;
+    let side = obs.side();
+    let (rotation, row, col) = if explored {
+        // Never empty: both masks fall back to the whole table.
+        let pixels: Vec<usize> = (0..allowed.len()).filter(|&i| allowed[i]).collect();
+        let pixel = pixels[rng.random_range(0..pixels.len())];
+        let rotation = rng.random_range(0..maps.rotations());
+        (rotation, pixel / side, pixel % side)
+    } else {
+        (best.1, best.2, best.3)
+    };
+    Ok(Decision {
+        action: Action {
+            primitive,
+            rotation,
+            row,
+            col,
+        },
+        predicted_q: maps.get(rotation, row, col),
+        goal_grasp_q,
+        explored,
+        reason,
+        goal_visible: input.goal != 0 && obs.ids.contains(&input.goal),
+    })
+}
+
+/// Q maps must cover the observation's pixels at the simulator's rotations.
+fn check_shape(primitive: Primitive, maps: &QMaps, obs: &Heightmaps) -> Result<(), ActorError> {
+    if maps.rotations() == ROTATIONS && maps.side() == obs.side() {
+        Ok(())
+    } else {
+        Err(ActorError::QMapsShape {
+            primitive,
+            rotations: maps.rotations(),
+            side: maps.side(),
+            want_rotations: ROTATIONS,
+            want_side: obs.side(),
+        })
+    }
+}

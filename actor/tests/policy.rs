@@ -1,0 +1,464 @@
+//! The hierarchical policy on rendered scenes: the Q* rule, the push budget, where pushes and
+//! grasps may go, exploration, the epsilon schedule and determinism.
+
+use std::collections::HashSet;
+
+use actor::{
+    ActorError, Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, QMaps, Reason,
+    choose, grasp_region, valid_push_starts,
+};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use sim::rapier3d::prelude::{Pose, Vector};
+use sim::workspace::CENTRE;
+use sim::{
+    Camera, Heightmaps, ObjectId, PixelGrid, Primitive, ROTATIONS, SLOT_COLOURS, ShapeKind,
+    SimConfig, Tabletop,
+};
+
+const GOAL: ObjectId = 1;
+const PIXEL_SIZE: f32 = 0.004;
+
+/// Adds a cube offset (dx, dy) from the workspace centre with its centre at height z.
+fn cube(tabletop: &mut Tabletop, id: ObjectId, dx: f32, dy: f32, z: f32) {
+    let at = Vector::new(CENTRE[0] + dx, CENTRE[1] + dy, z);
+    tabletop
+        .add_object(
+            id,
+            ShapeKind::Cube,
+            SLOT_COLOURS[id as usize % 10],
+            Pose::from_translation(at),
+        )
+        .unwrap();
+}
+
+/// The goal cube at the centre with three other cubes around it, 112 x 112.
+fn scene() -> Heightmaps {
+    let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(PIXEL_SIZE)).unwrap();
+    cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
+    cube(&mut tabletop, 2, 0.1, 0.0, 0.025);
+    cube(&mut tabletop, 3, -0.1, 0.05, 0.025);
+    cube(&mut tabletop, 4, 0.0, -0.12, 0.025);
+    Camera::new(tabletop.grid()).render(&tabletop)
+}
+
+/// The pixel under the point offset (dx, dy) from the workspace centre.
+fn pixel(obs: &Heightmaps, dx: f32, dy: f32) -> (usize, usize) {
+    obs.grid.pixel_of(CENTRE[0] + dx, CENTRE[1] + dy).unwrap()
+}
+
+/// Q maps of the observation's size, `base` everywhere but the given (rotation, pixel)s.
+fn maps(obs: &Heightmaps, base: f32, set: &[(u8, (usize, usize), f32)]) -> QMaps {
+    let side = obs.side();
+    let mut values = vec![base; ROTATIONS as usize * side * side];
+    for &(rotation, (row, col), q) in set {
+        values[(rotation as usize * side + row) * side + col] = q;
+    }
+    QMaps::new(ROTATIONS, side, values).unwrap()
+}
+
+/// Q maps of uniform random values in `range`.
+fn random_maps(obs: &Heightmaps, range: std::ops::Range<f32>, rng: &mut ChaCha8Rng) -> QMaps {
+    let len = ROTATIONS as usize * obs.side() * obs.side();
+    let values = (0..len).map(|_| rng.random_range(range.clone())).collect();
+    QMaps::new(ROTATIONS, obs.side(), values).unwrap()
+}
+
+fn input<'a>(
+    obs: &'a Heightmaps,
+    grasp: &'a QMaps,
+    push: Option<&'a QMaps>,
+    pushes_so_far: usize,
+) -> PolicyInput<'a> {
+    PolicyInput {
+        obs,
+        goal: GOAL,
+        grasp,
+        push,
+        pushes_so_far,
+    }
+}
+
+/// A greedy choice (epsilon 0) in push-grasp mode with the default config.
+fn greedy(input: &PolicyInput) -> Decision {
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    choose(
+        &PolicyConfig::default(),
+        Mode::PushGrasp,
+        input,
+        0.0,
+        &mut rng,
+    )
+    .unwrap()
+}
+
+fn at(decision: &Decision) -> (u8, (usize, usize)) {
+    let a = decision.action;
+    (a.rotation, (a.row, a.col))
+}
+
+/// The standard Q maps: the goal's grasp Q is `q` at rotation 3 of its centre pixel, a
+/// non-goal cube has a higher grasp Q (which must not count), and the best push starts on a
+/// cube (which must not be taken) while the best valid one is on the table.
+struct Fixture {
+    obs: Heightmaps,
+    goal_pixel: (usize, usize),
+    table_pixel: (usize, usize),
+    push: QMaps,
+}
+
+impl Fixture {
+    fn new() -> Self {
+        let obs = scene();
+        let goal_pixel = pixel(&obs, 0.0, 0.0);
+        let table_pixel = pixel(&obs, 0.17, 0.17);
+        let other_cube = pixel(&obs, 0.1, 0.0);
+        assert_eq!(obs.ids[obs.index(goal_pixel.0, goal_pixel.1)], GOAL);
+        assert_eq!(obs.ids[obs.index(table_pixel.0, table_pixel.1)], 0);
+        assert_eq!(obs.ids[obs.index(other_cube.0, other_cube.1)], 2);
+        let push = maps(&obs, 0.0, &[(7, table_pixel, 1.0), (2, other_cube, 9.0)]);
+        Self {
+            obs,
+            goal_pixel,
+            table_pixel,
+            push,
+        }
+    }
+
+    fn grasp(&self, q: f32) -> QMaps {
+        let other_cube = pixel(&self.obs, 0.1, 0.0);
+        maps(
+            &self.obs,
+            0.0,
+            &[(3, self.goal_pixel, q), (5, other_cube, 5.0)],
+        )
+    }
+}
+
+#[test]
+fn the_goal_is_grasped_just_above_q_star_and_pushed_for_at_or_below_it() {
+    let f = Fixture::new();
+    let grasp = f.grasp(1.81);
+    let d = greedy(&input(&f.obs, &grasp, Some(&f.push), 0));
+    assert_eq!(d.action.primitive, Primitive::Grasp);
+    assert_eq!(at(&d), (3, f.goal_pixel));
+    assert_eq!(
+        (d.reason, d.goal_grasp_q, d.predicted_q),
+        (Reason::AboveThreshold, 1.81, 1.81)
+    );
+    assert!(!d.explored && d.goal_visible);
+
+    for q in [1.79, 1.8] {
+        let grasp = f.grasp(q);
+        let d = greedy(&input(&f.obs, &grasp, Some(&f.push), 0));
+        assert_eq!(d.action.primitive, Primitive::Push, "q {q}");
+        // The best push over valid starts, not the better one on top of a cube.
+        assert_eq!(at(&d), (7, f.table_pixel));
+        assert_eq!(
+            (d.reason, d.goal_grasp_q, d.predicted_q),
+            (Reason::BelowThreshold, q, 1.0)
+        );
+    }
+}
+
+#[test]
+fn a_spent_push_budget_forces_a_grasp() {
+    let f = Fixture::new();
+    let grasp = f.grasp(1.0);
+    let d = greedy(&input(&f.obs, &grasp, Some(&f.push), 4));
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Push, Reason::BelowThreshold)
+    );
+    for pushes in [5, 6] {
+        let d = greedy(&input(&f.obs, &grasp, Some(&f.push), pushes));
+        assert_eq!(
+            (d.action.primitive, d.reason),
+            (Primitive::Grasp, Reason::PushBudgetSpent)
+        );
+        assert_eq!(at(&d), (3, f.goal_pixel));
+        assert_eq!(d.predicted_q, 1.0);
+    }
+    let config = PolicyConfig {
+        max_pushes: 2,
+        ..PolicyConfig::default()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let d = choose(
+        &config,
+        Mode::PushGrasp,
+        &input(&f.obs, &grasp, Some(&f.push), 2),
+        0.0,
+        &mut rng,
+    )
+    .unwrap();
+    assert_eq!(d.reason, Reason::PushBudgetSpent);
+}
+
+#[test]
+fn grasp_only_mode_and_missing_push_maps_always_grasp() {
+    let f = Fixture::new();
+    let grasp = f.grasp(0.2);
+    let config = PolicyConfig::default();
+    for epsilon in [0.0, 1.0] {
+        for seed in 0..20 {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let i = input(&f.obs, &grasp, Some(&f.push), 0);
+            let d = choose(&config, Mode::GraspOnly, &i, epsilon, &mut rng).unwrap();
+            assert_eq!(
+                (d.action.primitive, d.reason),
+                (Primitive::Grasp, Reason::GraspOnlyMode)
+            );
+        }
+    }
+    let d = greedy(&input(&f.obs, &grasp, None, 0));
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Grasp, Reason::NoPushMaps)
+    );
+    assert_eq!(at(&d), (3, f.goal_pixel));
+}
+
+#[test]
+fn a_hidden_goal_is_scored_over_every_object_and_a_bare_table_over_everything() {
+    let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(PIXEL_SIZE)).unwrap();
+    cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
+    cube(&mut tabletop, 5, 0.0, 0.0, 0.075); // on top of the goal, hiding it
+    cube(&mut tabletop, 2, 0.1, 0.0, 0.025);
+    let obs = Camera::new(tabletop.grid()).render(&tabletop);
+    assert!(!obs.goal_mask(GOAL).contains(&true));
+    let region = grasp_region(&obs, GOAL);
+    assert_eq!(
+        region,
+        obs.ids.iter().map(|&id| id != 0).collect::<Vec<_>>()
+    );
+
+    let top = pixel(&obs, 0.0, 0.0);
+    let grasp = maps(
+        &obs,
+        0.0,
+        &[
+            (2, top, 1.9),
+            (4, pixel(&obs, 0.1, 0.0), 1.5),
+            (6, pixel(&obs, 0.17, 0.17), 9.0),
+        ],
+    );
+    let d = greedy(&input(&obs, &grasp, None, 0));
+    assert_eq!(at(&d), (2, top));
+    assert_eq!(
+        (d.reason, d.goal_grasp_q, d.goal_visible),
+        (Reason::AboveThreshold, 1.9, false)
+    );
+
+    let bare = Heightmaps::new(PixelGrid::new(PIXEL_SIZE).unwrap());
+    assert!(grasp_region(&bare, GOAL).iter().all(|&a| a));
+    let table = (5, 7);
+    let grasp = maps(&bare, 0.0, &[(1, table, 0.5)]);
+    let d = greedy(&input(&bare, &grasp, None, 0));
+    assert_eq!((at(&d), d.goal_grasp_q), ((1, table), 0.5));
+}
+
+#[test]
+fn push_starts_exclude_object_tops_unless_nothing_else_is_left() {
+    let obs = scene();
+    let starts = valid_push_starts(&obs);
+    let on_objects = obs.ids.iter().filter(|&&id| id != 0).count();
+    assert!(
+        on_objects > 4 * 100,
+        "four 5 cm cubes at 4 mm cover over 400 pixels"
+    );
+    assert_eq!(starts.iter().filter(|&&s| !s).count(), on_objects);
+    for (i, &s) in starts.iter().enumerate() {
+        assert_eq!(s, obs.height[i] < PUSH_START_MAX_HEIGHT, "pixel {i}");
+    }
+
+    let mut covered = Heightmaps::new(PixelGrid::new(PIXEL_SIZE).unwrap());
+    covered.height.fill(0.05);
+    covered.ids.fill(GOAL);
+    assert!(valid_push_starts(&covered).iter().all(|&s| s));
+}
+
+#[test]
+fn pushes_never_start_on_an_object_greedy_or_exploring() {
+    let obs = scene();
+    let config = PolicyConfig::default();
+    let goal_mask = obs.goal_mask(GOAL);
+    let mut explored_rotations = HashSet::new();
+    let mut explored_pixels = HashSet::new();
+    for seed in 0..150 {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        // Grasp Q below Q* everywhere so the policy pushes; push Q highest anywhere.
+        let grasp = random_maps(&obs, -1.0..1.0, &mut rng);
+        let push = random_maps(&obs, -1.0..1.0, &mut rng);
+        for epsilon in [0.0, 1.0] {
+            let i = input(&obs, &grasp, Some(&push), 0);
+            let d = choose(&config, Mode::PushGrasp, &i, epsilon, &mut rng).unwrap();
+            let a = d.action;
+            assert_eq!((a.primitive, d.explored), (Primitive::Push, epsilon == 1.0));
+            let h = obs.height[obs.index(a.row, a.col)];
+            assert!(
+                h < PUSH_START_MAX_HEIGHT,
+                "seed {seed}: push starts at height {h}"
+            );
+            assert_eq!(d.predicted_q, push.get(a.rotation, a.row, a.col));
+            if d.explored {
+                explored_rotations.insert(a.rotation);
+                explored_pixels.insert((a.row, a.col));
+            }
+        }
+        // Exploring grasps stay on the goal.
+        let i = input(&obs, &grasp, None, 0);
+        let d = choose(&config, Mode::GraspOnly, &i, 1.0, &mut rng).unwrap();
+        assert!(
+            goal_mask[obs.index(d.action.row, d.action.col)],
+            "seed {seed}"
+        );
+        assert_eq!(
+            d.predicted_q,
+            grasp.get(d.action.rotation, d.action.row, d.action.col)
+        );
+    }
+    // Exploration spreads over rotations and pixels.
+    assert_eq!(explored_rotations.len(), ROTATIONS as usize);
+    assert!(
+        explored_pixels.len() > 140,
+        "{} distinct pixels",
+        explored_pixels.len()
+    );
+}
+
+#[test]
+fn the_exploration_rate_matches_epsilon() {
+    let f = Fixture::new();
+    let grasp = f.grasp(1.0);
+    let config = PolicyConfig::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (draws, epsilon) = (2000, 0.3f32);
+    let explored = (0..draws)
+        .filter(|_| {
+            let i = input(&f.obs, &grasp, Some(&f.push), 0);
+            choose(&config, Mode::PushGrasp, &i, epsilon, &mut rng)
+                .unwrap()
+                .explored
+        })
+        .count();
+    let mean = draws as f32 * epsilon;
+    let sigma = (draws as f32 * epsilon * (1.0 - epsilon)).sqrt();
+    assert!(
+        (explored as f32 - mean).abs() < 3.0 * sigma,
+        "{explored} explored of {draws}, expected {mean} +- {sigma}"
+    );
+}
+
+#[test]
+fn epsilon_starts_at_one_half_decays_per_action_and_floors_at_one_tenth() {
+    let config = PolicyConfig::default();
+    assert_eq!(config.epsilon(0), 0.5);
+    assert!((config.epsilon(1) - 0.5 * 0.9998).abs() < 1e-7);
+    assert!((config.epsilon(1000) - 0.5 * 0.9998f64.powi(1000) as f32).abs() < 1e-6);
+    let mut previous = f32::INFINITY;
+    for iteration in (0..20_000).step_by(250) {
+        let e = config.epsilon(iteration);
+        assert!(e <= previous && e >= 0.1, "iteration {iteration}: {e}");
+        previous = e;
+    }
+    // 0.5 * 0.9998^n reaches 0.1 near n = 8047.
+    assert!(config.epsilon(8000) > 0.1);
+    assert_eq!(config.epsilon(8100), 0.1);
+    assert_eq!(config.epsilon(u64::MAX), 0.1);
+}
+
+#[test]
+fn the_config_defaults_to_the_papers_numbers_and_refuses_unknown_fields() {
+    let config = PolicyConfig::default();
+    assert_eq!(
+        (
+            config.q_star,
+            config.max_pushes,
+            config.epsilon_start,
+            config.epsilon_end
+        ),
+        (1.8, 5, 0.5, 0.1)
+    );
+    assert_eq!(config.epsilon_decay, 0.9998);
+    let partial: PolicyConfig = toml::from_str("q_star = 1.5").unwrap();
+    assert_eq!(
+        partial,
+        PolicyConfig {
+            q_star: 1.5,
+            ..PolicyConfig::default()
+        }
+    );
+    let round_trip: PolicyConfig = toml::from_str(&toml::to_string(&config).unwrap()).unwrap();
+    assert_eq!(round_trip, config);
+    assert!(toml::from_str::<PolicyConfig>("q_starr = 1.5").is_err());
+}
+
+#[test]
+fn the_same_seed_gives_the_same_decisions() {
+    let obs = scene();
+    let config = PolicyConfig::default();
+    let run = |seed: u64| -> Vec<Decision> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let grasp = random_maps(&obs, 0.0..2.5, &mut rng);
+        let push = random_maps(&obs, -1.0..1.0, &mut rng);
+        (0..40)
+            .map(|k| {
+                let i = input(&obs, &grasp, Some(&push), k % 7);
+                choose(&config, Mode::PushGrasp, &i, 0.5, &mut rng).unwrap()
+            })
+            .collect()
+    };
+    let first = run(7);
+    assert_eq!(first, run(7));
+    assert_ne!(first, run(8));
+    assert!(first.iter().any(|d| d.explored) && first.iter().any(|d| !d.explored));
+}
+
+#[test]
+fn mismatched_maps_nan_maps_and_bad_epsilons_are_errors() {
+    let f = Fixture::new();
+    let grasp = f.grasp(1.0);
+    let config = PolicyConfig::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let mut try_choose = |grasp: &QMaps, push: Option<&QMaps>, epsilon: f32| {
+        choose(
+            &config,
+            Mode::PushGrasp,
+            &input(&f.obs, grasp, push, 0),
+            epsilon,
+            &mut rng,
+        )
+    };
+
+    let small = QMaps::new(ROTATIONS, 56, vec![0.0; ROTATIONS as usize * 56 * 56]).unwrap();
+    let side = f.obs.side();
+    let eight = QMaps::new(8, side, vec![0.0; 8 * side * side]).unwrap();
+    for (g, p, want) in [
+        (&small, Some(&f.push), Primitive::Grasp),
+        (&grasp, Some(&small), Primitive::Push),
+        (&eight, None, Primitive::Grasp),
+    ] {
+        match try_choose(g, p, 0.0) {
+            Err(ActorError::QMapsShape { primitive, .. }) => assert_eq!(primitive, want),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    let nan = maps(&f.obs, f32::NAN, &[]);
+    assert!(matches!(
+        try_choose(&nan, Some(&f.push), 0.0),
+        Err(ActorError::NoQValue(Primitive::Grasp))
+    ));
+    // NaN push Q is reported even when the push would have been explored.
+    assert!(matches!(
+        try_choose(&grasp, Some(&nan), 1.0),
+        Err(ActorError::NoQValue(Primitive::Push))
+    ));
+    for epsilon in [-0.1, 1.5, f32::NAN] {
+        assert!(matches!(
+            try_choose(&grasp, Some(&f.push), epsilon),
+            Err(ActorError::Epsilon(_))
+        ));
+    }
+}
