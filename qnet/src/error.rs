@@ -1,0 +1,13 @@
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum QNetError {
+    #[error("the networks' weights do not load: {0}")]
+    Weights(String),
+    #[error("rotation {0} is out of range (0..16)")]
+    Rotation(u8),
+    #[error("the input is {got} x {got} but the geometry is for {want} x {want}")]
+    Side { got: usize, want: usize },
+    #[error(transparent)]
+    QMaps(#[from] actor::ActorError),
+}

@@ -1,0 +1,161 @@
+//! The rotations around the networks: the input is padded (so no corner is lost) and
+//! rotated by -theta before the nets, and each Q map rotated back by +theta after them.
+//!
+//! In pixel coordinates (x along columns, y along rows) the action at angle theta points
+//! along (cos theta, sin theta). Rotating the input by -theta turns that direction into +x,
+//! so a net only ever learns to push (or close its jaws) along +x. The inputs need no
+//! gradient, so they are rotated here by a precomputed nearest-neighbour gather (as the
+//! original's nearest sampling); the outputs are rotated back with burn's bilinear
+//! `grid_sample`, which the learner differentiates through.
+
+use std::f32::consts::TAU;
+
+use sim::ROTATIONS;
+
+use crate::config::QNetConfig;
+use crate::error::QNetError;
+use crate::input::NetInput;
+
+/// A padded pixel whose source lies outside the image.
+const OUTSIDE: u32 = u32::MAX;
+
+/// The padding and rotation tables for one heightmap size and net shape.
+#[derive(Clone, Debug)]
+pub struct Geometry {
+    side: usize,
+    padded: usize,
+    downsample: usize,
+    /// Per rotation, for each pixel of the padded rotated input, its source pixel in the
+    /// unpadded image (row-major), or `OUTSIDE`.
+    sources: Vec<Vec<u32>>,
+}
+
+/// The angle of rotation k in radians.
+pub fn angle(rotation: u8) -> f32 {
+    rotation as f32 * TAU / ROTATIONS as f32
+}
+
+impl Geometry {
+    pub fn new(side: usize, config: &QNetConfig) -> Self {
+        let downsample = config.downsample();
+        let diagonal = (side as f32 * std::f32::consts::SQRT_2).ceil() as usize;
+        // A multiple of the downsampling, and of 2 past it so the image sits centred.
+        let step = downsample.max(2);
+        let mut padded = diagonal.div_ceil(step) * step;
+        if (padded - side) % 2 == 1 {
+            padded += step;
+        }
+        let offset = (padded - side) / 2;
+        let centre = padded as f32 / 2.0;
+        let sources = (0..ROTATIONS)
+            .map(|k| {
+                let (sin, cos) = angle(k).sin_cos();
+                let mut table = Vec::with_capacity(padded * padded);
+                for row in 0..padded {
+                    for col in 0..padded {
+                        let (dx, dy) = (col as f32 + 0.5 - centre, row as f32 + 0.5 - centre);
+                        let x = (centre + cos * dx - sin * dy).floor() - offset as f32;
+                        let y = (centre + sin * dx + cos * dy).floor() - offset as f32;
+                        let inside = x >= 0.0 && y >= 0.0 && x < side as f32 && y < side as f32;
+                        table.push(if inside {
+                            (y as usize * side + x as usize) as u32
+                        } else {
+                            OUTSIDE
+                        });
+                    }
+                }
+                table
+            })
+            .collect();
+        Self {
+            side,
+            padded,
+            downsample,
+            sources,
+        }
+    }
+
+    /// The heightmap side this geometry is for.
+    pub fn side(&self) -> usize {
+        self.side
+    }
+
+    /// Side of the padded input the nets see.
+    pub fn padded(&self) -> usize {
+        self.padded
+    }
+
+    /// Side of the Q maps the nets produce before upsampling.
+    pub fn low_side(&self) -> usize {
+        self.padded / self.downsample
+    }
+
+    /// Where the heightmap starts inside the padded square (both axes).
+    pub fn offset(&self) -> usize {
+        (self.padded - self.side) / 2
+    }
+
+    /// Checks an input and a rotation against this geometry.
+    pub fn check(&self, input: &NetInput, rotation: u8) -> Result<(), QNetError> {
+        if input.side != self.side {
+            return Err(QNetError::Side {
+                got: input.side,
+                want: self.side,
+            });
+        }
+        if rotation >= ROTATIONS {
+            return Err(QNetError::Rotation(rotation));
+        }
+        Ok(())
+    }
+
+    /// Appends the input planes padded and rotated by -theta to `[colour, depth, mask]`
+    /// (`3 x P x P`, `P x P` and `P x P` values), which batch as `[n, c, P, P]`.
+    pub fn rotate_input(&self, input: &NetInput, rotation: u8, out: [&mut Vec<f32>; 3]) {
+        let n = self.side * self.side;
+        let table = NetInput::table_values();
+        let planes: [&[f32]; 5] = [
+            &input.colour[..n],
+            &input.colour[n..2 * n],
+            &input.colour[2 * n..],
+            &input.depth,
+            &input.mask,
+        ];
+        let sources = &self.sources[rotation as usize];
+        let [colour, depth, mask] = out;
+        for (which, plane) in planes.iter().enumerate() {
+            let target: &mut Vec<f32> = match which {
+                0..=2 => colour,
+                3 => depth,
+                _ => mask,
+            };
+            target.extend(sources.iter().map(|&s| {
+                if s == OUTSIDE {
+                    table[which]
+                } else {
+                    plane[s as usize]
+                }
+            }));
+        }
+    }
+
+    /// The sampling grid that rotates low-resolution Q maps back by +theta, `[n, s, s, 2]`
+    /// in grid_sample's normalised coordinates (x then y, pixel centres, corners not
+    /// aligned).
+    pub fn back_grid(&self, rotations: &[u8]) -> Vec<f32> {
+        let s = self.low_side();
+        let mut grid = Vec::with_capacity(rotations.len() * s * s * 2);
+        for &k in rotations {
+            let (sin, cos) = angle(k).sin_cos();
+            for row in 0..s {
+                for col in 0..s {
+                    let u = (col as f32 + 0.5) / s as f32 * 2.0 - 1.0;
+                    let v = (row as f32 + 0.5) / s as f32 * 2.0 - 1.0;
+                    grid.push(cos * u + sin * v);
+                    grid.push(-sin * u + cos * v);
+                }
+            }
+        }
+        grid
+    }
+}

@@ -1,0 +1,24 @@
+//! The goal-conditioned push and grasp Q-networks, shared by the actors (inference over all
+//! rotations) and the learner (training on the executed rotation).
+//!
+//! Each primitive has one fully convolutional net: parallel trunks over the colour, depth and
+//! goal-mask planes, concatenated, then the paper's head, giving one Q map per rotation. The
+//! input is rotated by -theta (padded so no corner is lost) and each output rotated back by
+//! +theta, so Q map k scores the action at angle k x 22.5 degrees. The same code runs on the
+//! CPU backend (burn-flex, the default) and, with the `wgpu` feature, on a GPU.
+
+pub mod config;
+pub mod device;
+pub mod error;
+pub mod geometry;
+pub mod input;
+pub mod net;
+pub mod qnets;
+
+pub use config::QNetConfig;
+pub use device::{backend_name, default_device};
+pub use error::QNetError;
+pub use geometry::Geometry;
+pub use input::NetInput;
+pub use net::PrimitiveNet;
+pub use qnets::QNets;

@@ -1,0 +1,100 @@
+//! One primitive's Q-network: parallel trunks for colour, depth and goal mask, concatenated,
+//! then the paper's head (BN, ReLU, 1x1 conv to 64, BN, ReLU, 1x1 conv to 1).
+
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+use crate::config::QNetConfig;
+
+/// A 3x3 stride-2 convolution, batch norm and ReLU.
+#[derive(Module, Debug)]
+pub struct DownBlock {
+    conv: Conv2d,
+    norm: BatchNorm,
+}
+
+impl DownBlock {
+    fn new(channels_in: usize, channels_out: usize, device: &Device) -> Self {
+        Self {
+            conv: Conv2dConfig::new([channels_in, channels_out], [3, 3])
+                .with_stride([2, 2])
+                .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+                .init(device),
+            norm: BatchNormConfig::new(channels_out).init(device),
+        }
+    }
+
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        relu(self.norm.forward(self.conv.forward(x)))
+    }
+}
+
+/// A stack of down blocks over one kind of input plane.
+#[derive(Module, Debug)]
+pub struct Trunk {
+    blocks: Vec<DownBlock>,
+}
+
+impl Trunk {
+    fn new(channels_in: usize, widths: &[usize], device: &Device) -> Self {
+        let mut blocks = Vec::with_capacity(widths.len());
+        let mut channels = channels_in;
+        for &width in widths {
+            blocks.push(DownBlock::new(channels, width, device));
+            channels = width;
+        }
+        Self { blocks }
+    }
+
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        self.blocks.iter().fold(x, |x, block| block.forward(x))
+    }
+}
+
+/// The Q-network of one primitive.
+#[derive(Module, Debug)]
+pub struct PrimitiveNet {
+    colour: Trunk,
+    depth: Trunk,
+    mask: Trunk,
+    head_norm_in: BatchNorm,
+    head_hidden: Conv2d,
+    head_norm_hidden: BatchNorm,
+    head_out: Conv2d,
+}
+
+impl PrimitiveNet {
+    pub fn new(config: &QNetConfig, device: &Device) -> Self {
+        let widths = &config.trunk_widths;
+        // Three trunks' last widths side by side (a trunk without blocks passes its planes).
+        let last = |planes: usize| widths.last().copied().unwrap_or(planes);
+        let features = last(3) + 2 * last(1);
+        Self {
+            colour: Trunk::new(3, widths, device),
+            depth: Trunk::new(1, widths, device),
+            mask: Trunk::new(1, widths, device),
+            head_norm_in: BatchNormConfig::new(features).init(device),
+            head_hidden: Conv2dConfig::new([features, config.head_width], [1, 1]).init(device),
+            head_norm_hidden: BatchNormConfig::new(config.head_width).init(device),
+            head_out: Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device),
+        }
+    }
+
+    /// Low-resolution Q maps `[n, 1, P / d, P / d]` of rotated inputs colour `[n, 3, P, P]`,
+    /// depth and mask `[n, 1, P, P]`.
+    pub fn forward(&self, colour: Tensor<4>, depth: Tensor<4>, mask: Tensor<4>) -> Tensor<4> {
+        let features = Tensor::cat(
+            vec![
+                self.colour.forward(colour),
+                self.depth.forward(depth),
+                self.mask.forward(mask),
+            ],
+            1,
+        );
+        let x = relu(self.head_norm_in.forward(features));
+        let x = relu(self.head_norm_hidden.forward(self.head_hidden.forward(x)));
+        self.head_out.forward(x)
+    }
+}

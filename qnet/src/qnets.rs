@@ -1,0 +1,129 @@
+//! The two nets together: what the actor asks (Q maps for every rotation) and what the
+//! learner trains (Q maps for chosen rotations, differentiable), and the weights as bytes.
+
+use burn::module::Module;
+use burn::prelude::*;
+use burn::store::ModuleRecord;
+use burn::tensor::Bytes;
+use burn::tensor::module::interpolate;
+use burn::tensor::ops::{
+    GridSampleOptions, GridSamplePaddingMode, InterpolateMode, InterpolateOptions,
+};
+use sim::{Primitive, ROTATIONS};
+
+use actor::QMaps;
+
+use crate::config::QNetConfig;
+use crate::error::QNetError;
+use crate::geometry::Geometry;
+use crate::input::NetInput;
+use crate::net::PrimitiveNet;
+
+/// The push and the grasp Q-networks.
+#[derive(Module, Debug)]
+pub struct QNets {
+    pub push: PrimitiveNet,
+    pub grasp: PrimitiveNet,
+}
+
+impl QNets {
+    /// Freshly initialised nets.
+    pub fn new(config: &QNetConfig, device: &Device) -> Self {
+        Self {
+            push: PrimitiveNet::new(config, device),
+            grasp: PrimitiveNet::new(config, device),
+        }
+    }
+
+    pub fn net(&self, primitive: Primitive) -> &PrimitiveNet {
+        match primitive {
+            Primitive::Push => &self.push,
+            Primitive::Grasp => &self.grasp,
+        }
+    }
+
+    /// Q maps `[n, side, side]` of one primitive, one per (input, rotation) item, on this
+    /// module's device (differentiable when that is an autodiff device).
+    pub fn q_maps(
+        &self,
+        primitive: Primitive,
+        items: &[(&NetInput, u8)],
+        geometry: &Geometry,
+    ) -> Result<Tensor<3>, QNetError> {
+        let device = self
+            .devices()
+            .first()
+            .cloned()
+            .expect("the nets hold tensors on a device");
+        let n = items.len();
+        let (p, s, side) = (geometry.padded(), geometry.low_side(), geometry.side());
+        let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
+        for &(input, rotation) in items {
+            geometry.check(input, rotation)?;
+            geometry.rotate_input(input, rotation, [&mut colour, &mut depth, &mut mask]);
+        }
+        let plane = |values: Vec<f32>, channels: usize| {
+            Tensor::<4>::from_data(TensorData::new(values, [n, channels, p, p]), &device)
+        };
+        let low = self
+            .net(primitive)
+            .forward(plane(colour, 3), plane(depth, 1), plane(mask, 1));
+        let rotations: Vec<u8> = items.iter().map(|&(_, k)| k).collect();
+        let grid = Tensor::<4>::from_data(
+            TensorData::new(geometry.back_grid(&rotations), [n, s, s, 2]),
+            &device,
+        );
+        let back = low.grid_sample_2d(
+            grid,
+            GridSampleOptions::new(InterpolateMode::Bilinear)
+                .with_padding_mode(GridSamplePaddingMode::Border)
+                .with_align_corners(false),
+        );
+        let full = interpolate(
+            back,
+            InterpolateOptions::new(InterpolateMode::Bilinear)
+                .with_align_corners(false)
+                .with_output_size([p, p]),
+        );
+        let o = geometry.offset();
+        Ok(full
+            .slice([0..n, 0..1, o..o + side, o..o + side])
+            .reshape([n, side, side]))
+    }
+
+    /// Q maps of one primitive for all rotations, as the actor's plain arrays.
+    pub fn all_rotations(
+        &self,
+        primitive: Primitive,
+        input: &NetInput,
+        geometry: &Geometry,
+    ) -> Result<QMaps, QNetError> {
+        let items: Vec<(&NetInput, u8)> = (0..ROTATIONS).map(|k| (input, k)).collect();
+        let maps = self.q_maps(primitive, &items, geometry)?;
+        let values = maps
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("Q maps are f32");
+        Ok(QMaps::new(ROTATIONS, geometry.side(), values)?)
+    }
+
+    /// The weights of both nets as bytes (burn's burnpack format), for checkpoints and for
+    /// broadcasting to actors.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, QNetError> {
+        let bytes = self
+            .clone()
+            .into_record()
+            .into_bytes()
+            .map_err(|e| QNetError::Weights(e.to_string()))?;
+        Ok(bytes.to_vec())
+    }
+
+    /// These nets with the weights from `bytes` (made by [`QNets::to_bytes`] for nets of the
+    /// same configuration).
+    pub fn load_bytes(self, bytes: &[u8]) -> Result<Self, QNetError> {
+        let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(bytes.to_vec()))
+            .map_err(|e| QNetError::Weights(e.to_string()))?;
+        self.try_load_record(record)
+            .map_err(|e| QNetError::Weights(e.to_string()))
+    }
+}

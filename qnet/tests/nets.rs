@@ -1,0 +1,86 @@
+//! The nets' shapes, inference over every rotation, and weights round trips.
+
+use burn::module::Module;
+use burn::prelude::*;
+use qnet::{Geometry, NetInput, QNetConfig, QNets};
+use sim::{Camera, Primitive, SimConfig, Tabletop};
+
+fn scene_input(goal: u8) -> NetInput {
+    let (tabletop, _) = Tabletop::random(&SimConfig::with_pixel_size(0.004), 5, 3).unwrap();
+    let maps = Camera::new(tabletop.grid()).render(&tabletop);
+    NetInput::encode(&maps, goal)
+}
+
+#[test]
+fn q_maps_have_the_heightmaps_shape_for_every_rotation() {
+    let config = QNetConfig::default();
+    let device = Device::flex();
+    let nets = QNets::new(&config, &device).valid();
+    let geometry = Geometry::new(112, &config);
+    let input = scene_input(1);
+    let maps = nets
+        .all_rotations(Primitive::Grasp, &input, &geometry)
+        .unwrap();
+    assert_eq!((maps.rotations(), maps.side()), (16, 112));
+    assert!(maps.values().iter().all(|v| v.is_finite()));
+    let spread = maps.values().iter().fold(f32::MIN, |a, &b| a.max(b))
+        - maps.values().iter().fold(f32::MAX, |a, &b| a.min(b));
+    assert!(spread > 0.0, "Q maps vary over the scene");
+
+    let items = [(&input, 3u8), (&input, 11u8)];
+    let two = nets.q_maps(Primitive::Push, &items, &geometry).unwrap();
+    assert_eq!(two.dims(), [2, 112, 112]);
+}
+
+#[test]
+fn a_mismatched_input_or_rotation_is_refused() {
+    let config = QNetConfig::default();
+    let nets = QNets::new(&config, &Device::flex()).valid();
+    let geometry = Geometry::new(224, &config);
+    let input = scene_input(1);
+    let error = nets
+        .all_rotations(Primitive::Grasp, &input, &geometry)
+        .unwrap_err();
+    assert!(error.to_string().contains("112"), "{error}");
+    let geometry = Geometry::new(112, &config);
+    let error = nets
+        .q_maps(Primitive::Grasp, &[(&input, 16)], &geometry)
+        .unwrap_err();
+    assert!(error.to_string().contains("16"), "{error}");
+}
+
+#[test]
+fn weights_round_trip_through_bytes_to_identical_q_maps() {
+    let config = QNetConfig::default();
+    let device = Device::flex();
+    let geometry = Geometry::new(112, &config);
+    let input = scene_input(2);
+    let trained = QNets::new(&config, &device).valid();
+    let other = QNets::new(&config, &device).valid();
+    let want = trained
+        .all_rotations(Primitive::Grasp, &input, &geometry)
+        .unwrap();
+    let before = other
+        .all_rotations(Primitive::Grasp, &input, &geometry)
+        .unwrap();
+    assert_ne!(want, before, "two initialisations differ");
+
+    let bytes = trained.to_bytes().unwrap();
+    let loaded = other.load_bytes(&bytes).unwrap();
+    assert_eq!(
+        loaded
+            .all_rotations(Primitive::Grasp, &input, &geometry)
+            .unwrap(),
+        want
+    );
+    let push = |nets: &QNets| {
+        nets.all_rotations(Primitive::Push, &input, &geometry)
+            .unwrap()
+    };
+    assert_eq!(push(&loaded), push(&trained));
+
+    let error = QNets::new(&config, &device)
+        .load_bytes(&bytes[..bytes.len() / 2])
+        .unwrap_err();
+    assert!(error.to_string().contains("weights"), "{error}");
+}
