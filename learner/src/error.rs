@@ -1,0 +1,13 @@
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum LearnerError {
+    #[error(transparent)]
+    QNet(#[from] qnet::QNetError),
+    #[error("a {0:?} sample reached the trainer while that net is frozen")]
+    Frozen(sim::Primitive),
+    #[error("{path}: {message}")]
+    Checkpoint { path: PathBuf, message: String },
+}

@@ -1,0 +1,14 @@
+//! The learning rule of pushgrasp: bootstrap labels consistent with Q*, the Huber loss at the
+//! executed pixel only (weighted by the replay's importance-sampling weights), Adam, which
+//! net trains in which stage (the other frozen whole), and checkpoints.
+
+pub mod checkpoint;
+pub mod config;
+pub mod error;
+pub mod label;
+pub mod trainer;
+
+pub use checkpoint::{Checkpoint, Manifest};
+pub use config::LearningConfig;
+pub use error::LearnerError;
+pub use trainer::{Sample, StepReport, TrainedNet, Trainer, executed_pixel_loss};

@@ -1,0 +1,237 @@
+//! One learner update: the Q value at each sample's executed pixel (and, for a grasp, the
+//! same pixel at the symmetric rotation k + 8: a parallel jaw is symmetric), the Huber loss
+//! against the label weighted by the replay's importance-sampling weight, and an Adam step
+//! on the net being trained. Every other pixel contributes nothing.
+
+use burn::module::Module;
+use burn::nn::loss::HuberLossConfig;
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use qnet::{Geometry, NetInput, QNetConfig, QNets};
+use sim::{Action, Primitive, ROTATIONS};
+
+use crate::config::LearningConfig;
+use crate::error::LearnerError;
+
+/// One transition to learn from.
+#[derive(Clone, Debug)]
+pub struct Sample {
+    /// The observation the action was chosen on, with the sample's goal.
+    pub input: NetInput,
+    pub action: Action,
+    /// The bootstrap label (see [`crate::label`]).
+    pub label: f32,
+    /// The replay's importance-sampling weight (1 without prioritisation).
+    pub weight: f32,
+}
+
+/// Which net an update trains; the other is frozen whole (trunks and head).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TrainedNet {
+    Grasp,
+    Push,
+}
+
+impl TrainedNet {
+    pub fn primitive(self) -> Primitive {
+        match self {
+            TrainedNet::Grasp => Primitive::Grasp,
+            TrainedNet::Push => Primitive::Push,
+        }
+    }
+}
+
+/// What an update did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepReport {
+    /// The weighted loss summed over the batch (before the step).
+    pub loss: f32,
+    /// Each sample's Q at its executed pixel before the step.
+    pub predicted: Vec<f32>,
+    /// |label - predicted| per sample: the new priorities.
+    pub td_errors: Vec<f32>,
+}
+
+/// The nets being trained, their optimiser, and which of them learns.
+pub struct Trainer {
+    nets: QNets,
+    optimiser: ModuleOptimizer,
+    geometry: Geometry,
+    config: LearningConfig,
+    trained: TrainedNet,
+    updates: u64,
+}
+
+impl Trainer {
+    /// A trainer for `side x side` heightmaps. `nets` move to the autodiff version of
+    /// `device`.
+    pub fn new(
+        nets: QNets,
+        net_config: &QNetConfig,
+        side: usize,
+        config: &LearningConfig,
+        trained: TrainedNet,
+        device: &Device,
+    ) -> Self {
+        let optimiser = AdamConfig::new()
+            .with_beta_1(config.beta_1)
+            .with_beta_2(config.beta_2)
+            .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
+            .init();
+        let nets = nets.to_device(&device.clone().autodiff()).train();
+        let mut trainer = Self {
+            nets,
+            optimiser,
+            geometry: Geometry::new(side, net_config),
+            config: config.clone(),
+            trained,
+            updates: 0,
+        };
+        trainer.set_trained(trained);
+        trainer
+    }
+
+    /// Trains `which` from now on, freezing the other net whole.
+    pub fn set_trained(&mut self, which: TrainedNet) {
+        let nets = self.nets.clone();
+        self.nets = match which {
+            TrainedNet::Grasp => QNets {
+                push: nets.push.freeze(),
+                grasp: nets.grasp.unfreeze(),
+            },
+            TrainedNet::Push => QNets {
+                push: nets.push.unfreeze(),
+                grasp: nets.grasp.freeze(),
+            },
+        };
+        self.trained = which;
+    }
+
+    pub fn trained(&self) -> TrainedNet {
+        self.trained
+    }
+
+    /// Updates taken so far.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    pub fn geometry(&self) -> &Geometry {
+        &self.geometry
+    }
+
+    /// The nets in inference form (no autodiff, batch norm on its running statistics), for
+    /// the actor and for bootstrap values.
+    pub fn inference_nets(&self) -> QNets {
+        self.nets.valid()
+    }
+
+    /// One update on a batch of samples of the trained net's primitive.
+    pub fn train_step(&mut self, samples: &[Sample]) -> Result<StepReport, LearnerError> {
+        let primitive = self.trained.primitive();
+        if let Some(other) = samples.iter().find(|s| s.action.primitive != primitive) {
+            return Err(LearnerError::Frozen(other.action.primitive));
+        }
+        // Each sample at its rotation, and a grasp also at the symmetric one.
+        let mut items = Vec::new();
+        let mut owners = Vec::new();
+        for (i, sample) in samples.iter().enumerate() {
+            let k = sample.action.rotation;
+            let mut rotations = vec![k];
+            if primitive == Primitive::Grasp {
+                rotations.push((k + ROTATIONS / 2) % ROTATIONS);
+            }
+            for rotation in rotations {
+                items.push((&sample.input, rotation));
+                owners.push(i);
+            }
+        }
+        let maps = self.nets.q_maps(primitive, &items, &self.geometry)?;
+
+        let pixels: Vec<(usize, usize)> = owners
+            .iter()
+            .map(|&i| (samples[i].action.row, samples[i].action.col))
+            .collect();
+        let labels: Vec<f32> = owners.iter().map(|&i| samples[i].label).collect();
+        let weights: Vec<f32> = owners.iter().map(|&i| samples[i].weight).collect();
+        let (loss, q) =
+            executed_pixel_loss(maps, &pixels, &labels, &weights, self.config.huber_delta);
+
+        let q_values = q
+            .clone()
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("f32 Q values");
+        let loss_value = loss
+            .clone()
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("f32 loss")[0];
+        let grads = GradientsParams::from_grads(loss.backward(), &self.nets);
+        self.nets = self
+            .optimiser
+            .step(self.config.learning_rate, self.nets.clone(), grads);
+        self.updates += 1;
+
+        // Report the first rotation of each sample.
+        let predicted: Vec<f32> = samples
+            .iter()
+            .enumerate()
+            .map(|(i, _)| {
+                q_values[owners
+                    .iter()
+                    .position(|&o| o == i)
+                    .expect("every sample has an item")]
+            })
+            .collect();
+        let td_errors = samples
+            .iter()
+            .zip(&predicted)
+            .map(|(s, q)| (s.label - q).abs())
+            .collect();
+        Ok(StepReport {
+            loss: loss_value,
+            predicted,
+            td_errors,
+        })
+    }
+
+    /// The nets as they are now (autodiff form), for checkpoints.
+    pub fn nets(&self) -> &QNets {
+        &self.nets
+    }
+
+    /// Replaces the weights (a resumed checkpoint).
+    pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
+        self.nets = self.nets.clone().load_bytes(bytes)?;
+        self.set_trained(self.trained);
+        Ok(())
+    }
+}
+
+/// The weighted Huber loss of Q maps `[n, side, side]` at one pixel each, summed, and the Q
+/// values at those pixels. A one-hot mask picks the pixel, so no other pixel's Q receives
+/// any gradient.
+pub fn executed_pixel_loss(
+    maps: Tensor<3>,
+    pixels: &[(usize, usize)],
+    labels: &[f32],
+    weights: &[f32],
+    huber_delta: f32,
+) -> (Tensor<1>, Tensor<1>) {
+    let device = maps.device();
+    let [n, side, _] = maps.dims();
+    let mut one_hot = vec![0.0f32; n * side * side];
+    for (j, &(row, col)) in pixels.iter().enumerate() {
+        one_hot[j * side * side + row * side + col] = 1.0;
+    }
+    let one_hot = Tensor::<3>::from_data(TensorData::new(one_hot, [n, side, side]), &device);
+    let q = (maps * one_hot).sum_dim(2).sum_dim(1).reshape([n]);
+    let tensor =
+        |values: &[f32]| Tensor::<1>::from_data(TensorData::new(values.to_vec(), [n]), &device);
+    let huber = HuberLossConfig::new(huber_delta).init();
+    let loss = (huber.forward_no_reduction(q.clone(), tensor(labels)) * tensor(weights)).sum();
+    (loss, q)
+}

@@ -1,0 +1,210 @@
+//! The learning rule: the loss sees only the executed pixel, frozen nets stay put, labels
+//! converge where Q* expects, checkpoints and weights round-trip, and training learns.
+
+use burn::module::Module;
+use burn::prelude::*;
+use learner::checkpoint::config_hash;
+use learner::label::{grasp_label, push_label};
+use learner::{
+    Checkpoint, LearningConfig, Manifest, Sample, TrainedNet, Trainer, executed_pixel_loss,
+};
+use qnet::{NetInput, QNetConfig, QNets};
+use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
+
+fn trainer(trained: TrainedNet) -> Trainer {
+    let config = QNetConfig::default();
+    let device = Device::flex();
+    Trainer::new(
+        QNets::new(&config, &device),
+        &config,
+        112,
+        &LearningConfig::default(),
+        trained,
+        &device,
+    )
+}
+
+/// Samples from a real scene: grasps at each visible object's first pixel.
+fn samples(primitive: Primitive, label: f32) -> Vec<Sample> {
+    let (tabletop, _) = Tabletop::random(&SimConfig::with_pixel_size(0.004), 5, 21).unwrap();
+    let maps = Camera::new(tabletop.grid()).render(&tabletop);
+    maps.visible_ids()
+        .into_iter()
+        .take(4)
+        .enumerate()
+        .map(|(k, id)| {
+            let i = maps.ids.iter().position(|&v| v == id).unwrap();
+            Sample {
+                input: NetInput::encode(&maps, id),
+                action: Action {
+                    primitive,
+                    rotation: (3 * k) as u8,
+                    row: i / 112,
+                    col: i % 112,
+                },
+                label,
+                weight: 1.0,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn the_loss_gives_gradient_to_the_executed_pixels_only() {
+    let device = Device::flex().autodiff();
+    let maps = Tensor::<3>::random([2, 16, 16], burn::tensor::Distribution::Default, &device)
+        .require_grad();
+    let pixels = [(3, 5), (10, 1)];
+    let (loss, q) = executed_pixel_loss(maps.clone(), &pixels, &[1.5, 0.2], &[1.0, 0.5], 1.0);
+    let values = maps.clone().into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(
+        q.into_data().try_to_vec::<f32>().unwrap(),
+        vec![values[3 * 16 + 5], values[256 + 10 * 16 + 1]]
+    );
+    let grads = loss.backward();
+    let grad = maps
+        .grad(&grads)
+        .unwrap()
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    for (i, g) in grad.iter().enumerate() {
+        let executed = i == 3 * 16 + 5 || i == 256 + 10 * 16 + 1;
+        assert_eq!(*g != 0.0, executed, "pixel {i}: gradient {g}");
+    }
+    // d/dq of the Huber loss within delta is (q - y), scaled by the sample's weight (the
+    // second label is within 1 of any random value in [0, 1)).
+    let want = 0.5 * (values[256 + 10 * 16 + 1] - 0.2);
+    assert!((grad[256 + 10 * 16 + 1] - want).abs() < 1e-5);
+}
+
+#[test]
+fn labels_converge_to_the_fixed_point_q_star_sits_below() {
+    let gamma = LearningConfig::default().gamma;
+    let mut q = 0.0;
+    for _ in 0..40 {
+        q = grasp_label(1.0, true, Some(q), gamma);
+    }
+    assert!((q - 2.0).abs() < 1e-4 && q > 1.8, "{q}");
+    assert_eq!(
+        grasp_label(0.0, false, Some(1.9), gamma),
+        0.0,
+        "no future after a failure"
+    );
+    assert_eq!(
+        grasp_label(1.0, true, None, gamma),
+        1.0,
+        "no future after the last object"
+    );
+    assert_eq!(push_label(0.5, Some(1.0), gamma), 1.0);
+    assert_eq!(push_label(-0.5, None, gamma), -0.5);
+}
+
+#[test]
+fn a_frozen_net_does_not_change_and_refuses_samples() {
+    let mut trainer = trainer(TrainedNet::Grasp);
+    let push_before = trainer
+        .inference_nets()
+        .push
+        .into_record()
+        .into_bytes()
+        .unwrap()
+        .to_vec();
+    let grasp_before = trainer
+        .inference_nets()
+        .grasp
+        .into_record()
+        .into_bytes()
+        .unwrap()
+        .to_vec();
+    for _ in 0..3 {
+        trainer.train_step(&samples(Primitive::Grasp, 1.0)).unwrap();
+    }
+    let push_after = trainer
+        .inference_nets()
+        .push
+        .into_record()
+        .into_bytes()
+        .unwrap()
+        .to_vec();
+    let grasp_after = trainer
+        .inference_nets()
+        .grasp
+        .into_record()
+        .into_bytes()
+        .unwrap()
+        .to_vec();
+    assert_eq!(
+        push_before, push_after,
+        "the frozen push net is untouched, trunks included"
+    );
+    assert_ne!(grasp_before, grasp_after, "the trained grasp net learns");
+    let error = trainer
+        .train_step(&samples(Primitive::Push, 0.5))
+        .unwrap_err();
+    assert!(error.to_string().contains("frozen"), "{error}");
+
+    trainer.set_trained(TrainedNet::Push);
+    trainer.train_step(&samples(Primitive::Push, 0.5)).unwrap();
+    let grasp_frozen = trainer
+        .inference_nets()
+        .grasp
+        .into_record()
+        .into_bytes()
+        .unwrap()
+        .to_vec();
+    assert_eq!(grasp_after, grasp_frozen);
+}
+
+#[test]
+fn training_lowers_the_loss_on_a_fixed_replay_set() {
+    let mut trainer = trainer(TrainedNet::Grasp);
+    let batch = samples(Primitive::Grasp, 1.5);
+    let first = trainer.train_step(&batch).unwrap().loss;
+    let mut last = first;
+    for _ in 0..60 {
+        last = trainer.train_step(&batch).unwrap().loss;
+    }
+    assert!(last < 0.3 * first, "loss {first} -> {last}");
+    assert_eq!(trainer.updates(), 61);
+}
+
+#[test]
+fn checkpoints_round_trip_to_identical_q_maps() {
+    let config = QNetConfig::default();
+    let mut trained = trainer(TrainedNet::Grasp);
+    trained.train_step(&samples(Primitive::Grasp, 1.0)).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let checkpoint = Checkpoint::at(dir.path().join("ckpt"));
+    let manifest = Manifest {
+        stage: 1,
+        updates: trained.updates(),
+        side: 112,
+        config_hash: config_hash(&config),
+    };
+    checkpoint
+        .save(&manifest, &trained.inference_nets().to_bytes().unwrap())
+        .unwrap();
+
+    let (read, weights) = checkpoint.load(&config_hash(&config)).unwrap();
+    assert_eq!(read, manifest);
+    let mut resumed = trainer(TrainedNet::Grasp);
+    resumed.load_weights(&weights).unwrap();
+    let input = &samples(Primitive::Grasp, 1.0)[0].input;
+    let q = |t: &Trainer| {
+        t.inference_nets()
+            .all_rotations(Primitive::Grasp, input, t.geometry())
+            .unwrap()
+    };
+    assert_eq!(q(&resumed), q(&trained));
+
+    let other = QNetConfig {
+        trunk_widths: vec![8, 8],
+        ..QNetConfig::default()
+    };
+    let error = checkpoint.load(&config_hash(&other)).unwrap_err();
+    assert!(
+        error.to_string().contains("manifest.toml") && error.to_string().contains("config_hash"),
+        "{error}"
+    );
+}
