@@ -15,6 +15,19 @@ use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig
 pub enum BenchCommand {
     /// The simulator: scene settling, heightmaps, primitives, grasp and push quality.
     Sim(SimBenchArgs),
+    /// The Q-networks: inference on all rotations, training steps, FLOP rates beside the
+    /// backend's matmul peak.
+    Learner(LearnerBenchArgs),
+}
+
+#[derive(Args)]
+pub struct LearnerBenchArgs {
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Repetitions of each timed figure (medians are reported).
+    #[arg(long, default_value_t = 10)]
+    reps: usize,
 }
 
 #[derive(Args)]
@@ -55,6 +68,7 @@ struct SimFigures {
 pub fn run(command: BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Sim(args) => bench_sim(&args),
+        BenchCommand::Learner(args) => bench_learner(&args),
     }
 }
 
@@ -172,15 +186,124 @@ fn bench_sim(args: &SimBenchArgs) -> Result<()> {
         empty_table_grasp_success: empty_successes as f64 / args.trials.min(10) as f64,
         push_displacement_m,
     };
-    if args.json {
-        println!("{}", serde_json::to_string(&figures)?);
+    print_figures(&serde_json::to_value(&figures)?, args.json)
+}
+
+/// One flat JSON object on one line, or a name/value table.
+fn print_figures(figures: &serde_json::Value, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(figures)?);
     } else {
-        let value = serde_json::to_value(&figures)?;
-        for (name, v) in value.as_object().into_iter().flatten() {
+        for (name, v) in figures.as_object().into_iter().flatten() {
             println!("{name:32} {v}");
         }
     }
     Ok(())
+}
+
+fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
+    use learner::{LearningConfig, Sample, TrainedNet, Trainer};
+    use qnet::{NetInput, QNetConfig, QNets};
+
+    let reps = args.reps.max(1);
+    let device = qnet::default_device();
+    let net = QNetConfig::default();
+    let mut figures = serde_json::Map::new();
+    figures.insert("backend".into(), qnet::backend_name(&device).into());
+    figures.insert(
+        "trunk_widths".into(),
+        serde_json::to_value(&net.trunk_widths)?,
+    );
+    for pixel_size in [0.004f32, 0.002] {
+        let config = SimConfig::with_pixel_size(pixel_size);
+        let (tabletop, _) = Tabletop::random(&config, 10, 0)?;
+        let maps = Camera::new(tabletop.grid()).render(&tabletop);
+        let side = maps.side();
+        let goal = maps.visible_ids()[0];
+        let input = NetInput::encode(&maps, goal);
+        let mut trainer = Trainer::new(
+            QNets::new(&net, &device),
+            &net,
+            side,
+            &LearningConfig::default(),
+            TrainedNet::Grasp,
+            &device,
+        );
+        let nets = trainer.inference_nets();
+        let geometry = trainer.geometry().clone();
+        let infer = median(
+            (0..reps)
+                .map(|_| {
+                    ms(timed(|| {
+                        for primitive in [Primitive::Push, Primitive::Grasp] {
+                            nets.all_rotations(primitive, &input, &geometry)
+                                .expect("inference");
+                        }
+                    })
+                    .1)
+                })
+                .collect(),
+        );
+        let sample = |k: usize| Sample {
+            input: input.clone(),
+            action: Action {
+                primitive: Primitive::Grasp,
+                rotation: (k % 16) as u8,
+                row: side / 2,
+                col: side / 2 + k,
+            },
+            label: 1.0,
+            weight: 1.0,
+        };
+        let mut step_ms = |batch: usize| -> Result<f64> {
+            let samples: Vec<Sample> = (0..batch).map(sample).collect();
+            trainer.train_step(&samples)?;
+            let times = (0..reps)
+                .map(|_| timed(|| trainer.train_step(&samples)).1)
+                .map(ms)
+                .collect();
+            Ok(median(times))
+        };
+        let train = step_ms(1)?;
+        let batch_train = step_ms(8)?;
+        let per_rotation = net.flops_per_rotation(geometry.padded());
+        let gflop_inference = 2.0 * 16.0 * per_rotation / 1e9;
+        // A grasp trains its rotation and the symmetric one; backward costs about twice the
+        // forward.
+        let gflop_batch_train = 3.0 * 8.0 * 2.0 * per_rotation / 1e9;
+        let suffix = format!("_{side}");
+        let mut put = |name: &str, value: f64| {
+            figures.insert(format!("{name}{suffix}"), value.into());
+        };
+        put("infer_16rot_ms", infer);
+        put("train_step_ms", train);
+        put("batch_train_step_ms", batch_train);
+        put("gflop_per_inference", gflop_inference);
+        put("achieved_gflops", gflop_batch_train / (batch_train / 1e3));
+        put("inference_gflops", gflop_inference / (infer / 1e3));
+    }
+    figures.insert(
+        "matmul_peak_gflops".into(),
+        matmul_peak_gflops(&device, reps).into(),
+    );
+    print_figures(&serde_json::Value::Object(figures), args.json)
+}
+
+/// The backend's rate on a large square matrix product, the ceiling for the nets.
+fn matmul_peak_gflops(device: &burn::tensor::Device, reps: usize) -> f64 {
+    use burn::tensor::{Distribution, Tensor};
+    let n = 1024;
+    let a = Tensor::<2>::random([n, n], Distribution::Default, device);
+    let b = Tensor::<2>::random([n, n], Distribution::Default, device);
+    let run = || {
+        let c = a.clone().matmul(b.clone());
+        c.into_data();
+    };
+    run();
+    let best = (0..reps)
+        .map(|_| timed(run).1.as_secs_f64())
+        .fold(f64::MAX, f64::min);
+    2.0 * (n * n * n) as f64 / best / 1e9
 }
 
 /// A random pixel on some object, if any is visible.

@@ -5,6 +5,7 @@ mod bench;
 mod episode;
 mod pictures;
 mod scene;
+mod single;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -27,6 +28,8 @@ enum Command {
     Scene(scene::SceneCommand),
     /// Run a scripted episode on a random scene and write what the robot saw to logs/.
     Episode(episode::EpisodeArgs),
+    /// Train stage 1 (goal-conditioned grasping) in one process.
+    TrainSingle(single::SingleArgs),
     /// Measure the hot paths.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -36,6 +39,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Scene(command) => scene::run(command),
         Command::Episode(args) => episode::run(&args),
+        Command::TrainSingle(args) => single::run(&args),
         Command::Bench(command) => bench::run(command),
     }
 }

@@ -182,3 +182,37 @@ fn episode_writes_its_summary_and_observations() {
     assert!((1..=3).contains(&steps.len()), "{} steps", steps.len());
     assert_eq!(heightmap_sizes(out.path(), "step00"), vec![(224, 224); 3]);
 }
+
+#[test]
+fn train_single_writes_its_curve_and_a_loadable_checkpoint() {
+    let out = tempfile::tempdir().expect("a temporary directory");
+    let run = out.path().join("run");
+    pushgrasp_ok(&["train-single", "--episodes", "6", "--out", path_arg(&run)]);
+    let curve = std::fs::read_to_string(run.join("curve.csv")).expect("curve.csv");
+    let rows: Vec<&str> = curve.lines().collect();
+    assert!(rows[0].starts_with("episode,goal_grasped,success_last30"));
+    assert_eq!(rows.len(), 7, "a header and one row per episode:\n{curve}");
+    let manifest = std::fs::read_to_string(run.join("checkpoint/manifest.toml")).expect("manifest");
+    assert!(manifest.contains("stage = 1"), "{manifest}");
+    assert!(manifest.contains("updates = "), "{manifest}");
+    let config = qnet::QNetConfig::default();
+    let (read, weights) = learner::Checkpoint::at(run.join("checkpoint"))
+        .load(&learner::checkpoint::config_hash(&config))
+        .expect("the checkpoint loads");
+    assert!(read.updates >= 1 && read.updates <= 6, "{read:?}");
+    let nets = qnet::QNets::new(&config, &burn::tensor::Device::flex());
+    nets.load_bytes(&weights)
+        .expect("weights load into nets of the same shape");
+}
+
+#[test]
+fn train_single_refuses_a_bad_config_naming_the_file() {
+    let out = tempfile::tempdir().expect("a temporary directory");
+    let config = out.path().join("bad.toml");
+    std::fs::write(&config, "stage = 1\nepisodes = \"many\"\n").unwrap();
+    let stderr = pushgrasp_fails(&["train-single", "--config", path_arg(&config)]);
+    assert!(
+        stderr.contains("bad.toml") && stderr.contains("episodes"),
+        "{stderr}"
+    );
+}

@@ -28,4 +28,23 @@ impl QNetConfig {
     pub fn downsample(&self) -> usize {
         1 << self.trunk_widths.len()
     }
+
+    /// Multiply-adds x 2 of the convolutions of one net on one rotation of a padded input
+    /// (batch norms, activations and the rotations are a few percent on top).
+    pub fn flops_per_rotation(&self, padded: usize) -> f64 {
+        let mut flops = 0.0;
+        let mut size = padded;
+        let mut channels = [3usize, 1, 1];
+        for &width in &self.trunk_widths {
+            size = size.div_ceil(2);
+            let area = (size * size) as f64;
+            for c in &mut channels {
+                flops += 2.0 * area * (width * *c * 9) as f64;
+                *c = width;
+            }
+        }
+        let features: usize = channels.iter().sum();
+        let area = (size * size) as f64;
+        flops + 2.0 * area * (features * self.head_width + self.head_width) as f64
+    }
 }
