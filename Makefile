@@ -4,10 +4,10 @@ SHARED ?= ../shared
 
 .PHONY: run test bench lint fmt arrangements
 
-# The main job: until training lands, a scripted episode on a random scene, with the
-# heightmaps the robot saw written to logs/.
+# The main job: stage-1 training (goal-conditioned grasping) in one process on the CPU,
+# about a minute; its learning curve and checkpoint land in logs/single-stage1-seed1/.
 run:
-	$(CARGO) run --release -- episode --objects 10 --seed 1
+	$(CARGO) run --release -- train-single --config configs/stage1.toml
 
 # Every test, built optimised (physics in an unoptimised build is too slow to test).
 test:
@@ -15,6 +15,7 @@ test:
 
 bench:
 	$(CARGO) run --release -- bench sim
+	$(CARGO) run --release -- bench learner
 
 lint:
 	$(CARGO) fmt --all -- --check

@@ -1,6 +1,10 @@
 //! The hierarchical policy on rendered scenes: the Q* rule, the push budget, where pushes and
 //! grasps may go, exploration, the epsilon schedule and determinism.
 
+mod common;
+
+use common::cube;
+use sim::workspace::CENTRE;
 use std::collections::HashSet;
 
 use actor::{
@@ -9,28 +13,10 @@ use actor::{
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use sim::rapier3d::prelude::{Pose, Vector};
-use sim::workspace::CENTRE;
-use sim::{
-    Camera, Heightmaps, ObjectId, PixelGrid, Primitive, ROTATIONS, SLOT_COLOURS, ShapeKind,
-    SimConfig, Tabletop,
-};
+use sim::{Camera, Heightmaps, ObjectId, PixelGrid, Primitive, ROTATIONS, SimConfig, Tabletop};
 
 const GOAL: ObjectId = 1;
 const PIXEL_SIZE: f32 = 0.004;
-
-/// Adds a cube offset (dx, dy) from the workspace centre with its centre at height z.
-fn cube(tabletop: &mut Tabletop, id: ObjectId, dx: f32, dy: f32, z: f32) {
-    let at = Vector::new(CENTRE[0] + dx, CENTRE[1] + dy, z);
-    tabletop
-        .add_object(
-            id,
-            ShapeKind::Cube,
-            SLOT_COLOURS[id as usize % 10],
-            Pose::from_translation(at),
-        )
-        .unwrap();
-}
 
 /// The goal cube at the centre with three other cubes around it, 112 x 112.
 fn scene() -> Heightmaps {

@@ -1,10 +1,11 @@
 //! The grasp and push rewards, on hand-built change reports and on real renders.
 
+mod common;
+
 use actor::{PUSH_REWARD, Q_IMPROVEMENT, grasp_reward, push_reward};
+use common::cube;
 use sim::measure::{ChangeReport, detect_change};
-use sim::rapier3d::prelude::{Pose, Vector};
-use sim::workspace::CENTRE;
-use sim::{Camera, SLOT_COLOURS, ShapeKind, SimConfig, Tabletop};
+use sim::{Camera, SimConfig, Tabletop};
 
 #[test]
 fn only_the_goal_object_earns_a_grasp_reward() {
@@ -38,31 +39,18 @@ fn the_push_reward_has_the_papers_three_cases() {
     assert_eq!(push_reward(0.0, 0.1, &report(true)), 0.0);
 }
 
-/// A cube at the workspace centre offset by (dx, dy), resting on the table.
-fn cube(tabletop: &mut Tabletop, id: u8, dx: f32, dy: f32) {
-    let at = Vector::new(CENTRE[0] + dx, CENTRE[1] + dy, 0.025);
-    tabletop
-        .add_object(
-            id,
-            ShapeKind::Cube,
-            SLOT_COLOURS[id as usize % 10],
-            Pose::from_translation(at),
-        )
-        .unwrap();
-}
-
 #[test]
 fn clearing_the_goals_neighbours_is_rewarded_and_an_unchanged_scene_is_penalised() {
     let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(0.004)).unwrap();
     let camera = Camera::new(tabletop.grid());
     let goal = 1;
-    cube(&mut tabletop, goal, 0.0, 0.0);
+    cube(&mut tabletop, goal, 0.0, 0.0, 0.025);
     // Four neighbours 5 mm from the goal's faces, and one far away.
     let d = 0.055;
     for (id, (dx, dy)) in (2..).zip([(d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)]) {
-        cube(&mut tabletop, id, dx, dy);
+        cube(&mut tabletop, id, dx, dy, 0.025);
     }
-    cube(&mut tabletop, 6, 0.15, 0.15);
+    cube(&mut tabletop, 6, 0.15, 0.15, 0.025);
     let before = camera.render(&tabletop);
 
     // The far cube leaving changes nothing around the goal.

@@ -11,6 +11,11 @@ use learner::{
 use qnet::{NetInput, QNetConfig, QNets};
 use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
 
+/// A net's parameters as bytes, to compare.
+fn weights(net: &qnet::PrimitiveNet) -> Vec<u8> {
+    net.clone().into_record().into_bytes().unwrap().to_vec()
+}
+
 fn trainer(trained: TrainedNet) -> Trainer {
     let config = QNetConfig::default();
     let device = Device::flex();
@@ -103,37 +108,13 @@ fn labels_converge_to_the_fixed_point_q_star_sits_below() {
 #[test]
 fn a_frozen_net_does_not_change_and_refuses_samples() {
     let mut trainer = trainer(TrainedNet::Grasp);
-    let push_before = trainer
-        .inference_nets()
-        .push
-        .into_record()
-        .into_bytes()
-        .unwrap()
-        .to_vec();
-    let grasp_before = trainer
-        .inference_nets()
-        .grasp
-        .into_record()
-        .into_bytes()
-        .unwrap()
-        .to_vec();
+    let push_before = weights(&trainer.inference_nets().push);
+    let grasp_before = weights(&trainer.inference_nets().grasp);
     for _ in 0..3 {
         trainer.train_step(&samples(Primitive::Grasp, 1.0)).unwrap();
     }
-    let push_after = trainer
-        .inference_nets()
-        .push
-        .into_record()
-        .into_bytes()
-        .unwrap()
-        .to_vec();
-    let grasp_after = trainer
-        .inference_nets()
-        .grasp
-        .into_record()
-        .into_bytes()
-        .unwrap()
-        .to_vec();
+    let push_after = weights(&trainer.inference_nets().push);
+    let grasp_after = weights(&trainer.inference_nets().grasp);
     assert_eq!(
         push_before, push_after,
         "the frozen push net is untouched, trunks included"
@@ -146,13 +127,7 @@ fn a_frozen_net_does_not_change_and_refuses_samples() {
 
     trainer.set_trained(TrainedNet::Push);
     trainer.train_step(&samples(Primitive::Push, 0.5)).unwrap();
-    let grasp_frozen = trainer
-        .inference_nets()
-        .grasp
-        .into_record()
-        .into_bytes()
-        .unwrap()
-        .to_vec();
+    let grasp_frozen = weights(&trainer.inference_nets().grasp);
     assert_eq!(grasp_after, grasp_frozen);
 }
 
