@@ -2,7 +2,7 @@
 CARGO ?= cargo
 SHARED ?= ../shared
 
-.PHONY: run test bench lint fmt arrangements
+.PHONY: run test bench lint check-wgpu fmt arrangements
 
 # The main job: stage-1 training (goal-conditioned grasping) in one process on the CPU,
 # about a minute; its learning curve and checkpoint land in logs/single-stage1-seed1/.
@@ -20,6 +20,10 @@ bench:
 lint:
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+
+# Type-checks the GPU build (burn-wgpu) without a GPU; building it fully takes ~20 minutes.
+check-wgpu:
+	$(CARGO) check --release --features wgpu
 
 fmt:
 	$(CARGO) fmt --all

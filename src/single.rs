@@ -65,7 +65,15 @@ pub struct SingleConfig {
 #[serde(deny_unknown_fields)]
 pub struct ReplayConfig {
     pub capacity: usize,
+    /// Samples replayed with each update, besides the newest.
     pub batch: usize,
+    /// Learner updates per episode (the first also takes the newest samples).
+    #[serde(default = "one")]
+    pub updates: usize,
+}
+
+fn one() -> usize {
+    1
 }
 
 impl SingleConfig {
@@ -250,17 +258,17 @@ pub fn run(args: &SingleArgs) -> Result<()> {
         }
 
         // Learn: the newest samples and a few replayed ones.
-        let loss = if args.random || fresh.is_empty() && replay.is_empty() {
-            None
-        } else {
-            let mut batch = std::mem::take(&mut fresh);
-            for _ in 0..config.replay.batch.min(replay.len()) {
-                batch.push(replay[rng.random_range(0..replay.len())].sample());
+        let mut loss = None;
+        if !args.random && !replay.is_empty() {
+            for _ in 0..config.replay.updates {
+                let mut batch = std::mem::take(&mut fresh);
+                for _ in 0..config.replay.batch.min(replay.len()) {
+                    batch.push(replay[rng.random_range(0..replay.len())].sample());
+                }
+                loss = Some(trainer.train_step(&batch)?.loss);
             }
-            let report = trainer.train_step(&batch)?;
             nets = trainer.inference_nets();
-            Some(report.loss)
-        };
+        }
 
         if recent.len() == WINDOW {
             recent.pop_front();
