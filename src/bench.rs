@@ -206,10 +206,11 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     use qnet::{NetInput, QNetConfig, QNets};
 
     let reps = args.reps.max(1);
-    let device = qnet::default_device();
+    let backend = qnet::Backend::selected();
+    let device = backend.device();
     let net = QNetConfig::default();
     let mut figures = serde_json::Map::new();
-    figures.insert("backend".into(), qnet::backend_name(&device).into());
+    figures.insert("backend".into(), backend.name().into());
     figures.insert(
         "trunk_widths".into(),
         serde_json::to_value(&net.trunk_widths)?,

@@ -115,8 +115,11 @@ impl Stored {
 /// A successful grasp waiting for the next scene's value to complete its label.
 struct Pending {
     obs: Heightmaps,
-    goals: Vec<ObjectId>,
     action: Action,
+    /// The episode's goal.
+    goal: ObjectId,
+    /// What the grasp picked (the goal, or another object the grasp is relabelled for).
+    picked: ObjectId,
 }
 
 /// One row of the learning curve.
@@ -143,7 +146,9 @@ pub fn run(args: &SingleArgs) -> Result<()> {
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join("config.toml"), toml::to_string(&config)?)?;
 
-    let device = qnet::default_device();
+    let device = qnet::Backend::selected().device();
+    // The nets' initial weights come from the backend's generator.
+    device.seed(config.seed);
     let side = config.sim.grid()?.side();
     let mut trainer = Trainer::new(
         QNets::new(&config.net, &device),
@@ -235,15 +240,11 @@ pub fn run(args: &SingleArgs) -> Result<()> {
         match outcome.grasped {
             // The goal and, relabelled, whatever else was picked: labels wait for the next scene.
             Some(picked) => {
-                let goals = if picked == goal {
-                    vec![goal]
-                } else {
-                    vec![goal, picked]
-                };
                 pending = Some(Pending {
                     obs,
-                    goals,
                     action: decision.action,
+                    goal,
+                    picked,
                 });
             }
             None => {
@@ -321,7 +322,8 @@ pub fn run(args: &SingleArgs) -> Result<()> {
 }
 
 /// Completes a pending success's labels with the next value and stores them; returns them
-/// as samples.
+/// as samples. A non-goal pick is stored twice: for the episode's goal, which earned nothing,
+/// and relabelled for the object picked, which it grasped.
 fn finish(
     pending: Pending,
     next_value: Option<f32>,
@@ -329,24 +331,26 @@ fn finish(
     replay: &mut VecDeque<Stored>,
     capacity: usize,
 ) -> Vec<Sample> {
-    let label = grasp_label(1.0, true, next_value, learning.gamma);
-    let mut samples = Vec::new();
-    for (i, &goal) in pending.goals.iter().enumerate() {
-        // The original goal of a non-goal pick earned nothing.
-        let label = if i == 0 && pending.goals.len() > 1 {
-            grasp_label(0.0, false, None, learning.gamma)
-        } else {
-            label
-        };
-        let stored = Stored {
-            obs: pending.obs.clone(),
-            goal,
-            action: pending.action,
-            label,
-        };
-        samples.push(remember(replay, stored, capacity));
+    let success = grasp_label(1.0, true, next_value, learning.gamma);
+    let mut labelled = vec![(pending.picked, success)];
+    if pending.picked != pending.goal {
+        labelled.insert(
+            0,
+            (pending.goal, grasp_label(0.0, false, None, learning.gamma)),
+        );
     }
-    samples
+    labelled
+        .into_iter()
+        .map(|(goal, label)| {
+            let stored = Stored {
+                obs: pending.obs.clone(),
+                goal,
+                action: pending.action,
+                label,
+            };
+            remember(replay, stored, capacity)
+        })
+        .collect()
 }
 
 /// Adds a transition to replay, dropping the oldest when full; returns it as a sample.

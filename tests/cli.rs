@@ -216,3 +216,18 @@ fn train_single_refuses_a_bad_config_naming_the_file() {
         "{stderr}"
     );
 }
+
+#[test]
+fn train_single_is_reproducible_for_a_seed() {
+    let out = tempfile::tempdir().expect("a temporary directory");
+    let curve = |name: &str| {
+        let run = out.path().join(name);
+        pushgrasp_ok(&["train-single", "--episodes", "4", "--out", path_arg(&run)]);
+        let text = std::fs::read_to_string(run.join("curve.csv")).expect("curve.csv");
+        // Everything but the wall-clock column.
+        text.lines()
+            .map(|line| line.rsplit_once(',').expect("columns").0.to_string())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(curve("a"), curve("b"));
+}

@@ -135,27 +135,33 @@ impl Trainer {
             return Err(LearnerError::Frozen(other.action.primitive));
         }
         // Each sample at its rotation, and a grasp also at the symmetric one.
-        let mut items = Vec::new();
-        let mut owners = Vec::new();
-        for (i, sample) in samples.iter().enumerate() {
-            let k = sample.action.rotation;
-            let mut rotations = vec![k];
-            if primitive == Primitive::Grasp {
-                rotations.push((k + ROTATIONS / 2) % ROTATIONS);
-            }
-            for rotation in rotations {
-                items.push((&sample.input, rotation));
-                owners.push(i);
-            }
-        }
+        let rotations = |k: u8| match primitive {
+            Primitive::Grasp => vec![k, (k + ROTATIONS / 2) % ROTATIONS],
+            Primitive::Push => vec![k],
+        };
+        let per_sample = rotations(0).len();
+        let items: Vec<(&NetInput, u8)> = samples
+            .iter()
+            .flat_map(|s| {
+                rotations(s.action.rotation)
+                    .into_iter()
+                    .map(move |k| (&s.input, k))
+            })
+            .collect();
         let maps = self.nets.q_maps(primitive, &items, &self.geometry)?;
 
-        let pixels: Vec<(usize, usize)> = owners
+        let repeat = |f: &dyn Fn(&Sample) -> f32| -> Vec<f32> {
+            samples
+                .iter()
+                .flat_map(|s| std::iter::repeat_n(f(s), per_sample))
+                .collect()
+        };
+        let pixels: Vec<(usize, usize)> = samples
             .iter()
-            .map(|&i| (samples[i].action.row, samples[i].action.col))
+            .flat_map(|s| std::iter::repeat_n((s.action.row, s.action.col), per_sample))
             .collect();
-        let labels: Vec<f32> = owners.iter().map(|&i| samples[i].label).collect();
-        let weights: Vec<f32> = owners.iter().map(|&i| samples[i].weight).collect();
+        let labels = repeat(&|s| s.label);
+        let weights = repeat(&|s| s.weight);
         let (loss, q) =
             executed_pixel_loss(maps, &pixels, &labels, &weights, self.config.huber_delta);
 
@@ -175,17 +181,8 @@ impl Trainer {
             .step(self.config.learning_rate, self.nets.clone(), grads);
         self.updates += 1;
 
-        // Report the first rotation of each sample.
-        let predicted: Vec<f32> = samples
-            .iter()
-            .enumerate()
-            .map(|(i, _)| {
-                q_values[owners
-                    .iter()
-                    .position(|&o| o == i)
-                    .expect("every sample has an item")]
-            })
-            .collect();
+        // Report each sample's own rotation (the first of its items).
+        let predicted: Vec<f32> = q_values.iter().step_by(per_sample).copied().collect();
         let td_errors = samples
             .iter()
             .zip(&predicted)

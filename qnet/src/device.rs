@@ -1,23 +1,38 @@
-//! Which device the networks run on: the CPU backend unless the `wgpu` feature is built and
-//! `PUSHGRASP_DEVICE=cpu` does not ask otherwise.
+//! Which backend the networks run on: the CPU backend (burn-flex) unless the `wgpu` feature
+//! is built, and then burn-wgpu unless `PUSHGRASP_DEVICE=cpu` asks for the CPU.
 
 use burn::tensor::Device;
 
-/// The device to run on.
-pub fn default_device() -> Device {
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    Flex,
     #[cfg(feature = "wgpu")]
-    if std::env::var("PUSHGRASP_DEVICE").as_deref() != Ok("cpu") {
-        return Device::wgpu(burn::tensor::DeviceKind::DefaultDevice);
-    }
-    Device::flex()
+    Wgpu,
 }
 
-/// A short name of the backend a device belongs to, for reports.
-pub fn backend_name(device: &Device) -> String {
-    let name = format!("{device:?}");
-    if name.to_lowercase().contains("wgpu") {
-        "wgpu".into()
-    } else {
-        "flex".into()
+impl Backend {
+    /// The backend this build and environment select.
+    pub fn selected() -> Self {
+        #[cfg(feature = "wgpu")]
+        if std::env::var("PUSHGRASP_DEVICE").as_deref() != Ok("cpu") {
+            return Backend::Wgpu;
+        }
+        Backend::Flex
+    }
+
+    pub fn device(self) -> Device {
+        match self {
+            Backend::Flex => Device::flex(),
+            #[cfg(feature = "wgpu")]
+            Backend::Wgpu => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Flex => "flex",
+            #[cfg(feature = "wgpu")]
+            Backend::Wgpu => "wgpu",
+        }
     }
 }

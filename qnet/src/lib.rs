@@ -16,7 +16,7 @@ pub mod net;
 pub mod qnets;
 
 pub use config::QNetConfig;
-pub use device::{backend_name, default_device};
+pub use device::Backend;
 pub use error::QNetError;
 pub use geometry::Geometry;
 pub use input::NetInput;

@@ -35,6 +35,14 @@ impl QNets {
         }
     }
 
+    /// The device the nets' tensors live on.
+    pub fn device(&self) -> Device {
+        self.devices()
+            .first()
+            .cloned()
+            .expect("the nets hold tensors on a device")
+    }
+
     pub fn net(&self, primitive: Primitive) -> &PrimitiveNet {
         match primitive {
             Primitive::Push => &self.push,
@@ -50,11 +58,7 @@ impl QNets {
         items: &[(&NetInput, u8)],
         geometry: &Geometry,
     ) -> Result<Tensor<3>, QNetError> {
-        let device = self
-            .devices()
-            .first()
-            .cloned()
-            .expect("the nets hold tensors on a device");
+        let device = self.device();
         let n = items.len();
         let (p, s, side) = (geometry.padded(), geometry.low_side(), geometry.side());
         let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
