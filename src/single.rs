@@ -40,6 +40,10 @@ pub struct SingleArgs {
     /// Measure the random policy instead: grasps drawn uniformly in the goal mask, no learning.
     #[arg(long)]
     random: bool,
+    /// After training, this many greedy grasps (epsilon 0; random with --random) on fresh
+    /// scenes, none seen in training: the policy's goal grasp success without exploration.
+    #[arg(long, default_value_t = 0)]
+    eval: usize,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -318,7 +322,63 @@ pub fn run(args: &SingleArgs) -> Result<()> {
         100.0 * curve.last().map_or(0.0, |p| p.success_last30),
         out.join("curve.csv").display()
     );
+    if args.eval > 0 {
+        let epsilon = if args.random { 1.0 } else { 0.0 };
+        let (successes, attempts) =
+            evaluate(&config, &nets, trainer.geometry(), args.eval, epsilon)?;
+        println!(
+            "evaluation: goal grasp success {:.1}% ({successes} of {attempts} grasps, epsilon {epsilon})",
+            100.0 * successes as f64 / attempts as f64
+        );
+    }
     Ok(())
+}
+
+/// Grasps with the given nets on scenes none of training saw (seeded apart from them), a few
+/// goals per scene: (goal grasps, attempts).
+fn evaluate(
+    config: &SingleConfig,
+    nets: &QNets,
+    geometry: &qnet::Geometry,
+    attempts: usize,
+    epsilon: f32,
+) -> Result<(usize, usize)> {
+    const GOALS_PER_SCENE: usize = 3;
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed ^ 0xe7a1);
+    let (mut successes, mut done) = (0, 0);
+    let mut scene_seed = u64::MAX / 2 + config.seed * 1_000_000;
+    while done < attempts {
+        scene_seed += 1;
+        let (mut tabletop, _) = Tabletop::random(&config.sim, config.objects, scene_seed)?;
+        let camera = Camera::new(tabletop.grid());
+        for _ in 0..GOALS_PER_SCENE.min(attempts - done) {
+            let obs = camera.render(&tabletop);
+            let visible = obs.visible_ids();
+            let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {
+                break;
+            };
+            let input = NetInput::encode(&obs, goal);
+            let grasp = nets.all_rotations(sim::Primitive::Grasp, &input, geometry)?;
+            let policy_input = PolicyInput {
+                obs: &obs,
+                goal,
+                grasp: &grasp,
+                push: None,
+                pushes_so_far: 0,
+            };
+            let decision = actor::choose(
+                &config.policy,
+                Mode::GraspOnly,
+                &policy_input,
+                epsilon,
+                &mut rng,
+            )?;
+            let outcome = tabletop.act(&decision.action, &obs)?;
+            successes += usize::from(outcome.grasped == Some(goal));
+            done += 1;
+        }
+    }
+    Ok((successes, done))
 }
 
 /// Completes a pending success's labels with the next value and stores them; returns them

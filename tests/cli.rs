@@ -187,7 +187,16 @@ fn episode_writes_its_summary_and_observations() {
 fn train_single_writes_its_curve_and_a_loadable_checkpoint() {
     let out = tempfile::tempdir().expect("a temporary directory");
     let run = out.path().join("run");
-    pushgrasp_ok(&["train-single", "--episodes", "6", "--out", path_arg(&run)]);
+    let stdout = pushgrasp_ok(&[
+        "train-single",
+        "--episodes",
+        "6",
+        "--eval",
+        "3",
+        "--out",
+        path_arg(&run),
+    ]);
+    assert!(stdout.contains("of 3 grasps, epsilon 0)"), "{stdout}");
     let curve = std::fs::read_to_string(run.join("curve.csv")).expect("curve.csv");
     let rows: Vec<&str> = curve.lines().collect();
     assert!(rows[0].starts_with("episode,goal_grasped,success_last30"));
