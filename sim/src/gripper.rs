@@ -7,7 +7,7 @@
 
 use rapier3d::prelude::*;
 
-use crate::tabletop::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
+use crate::collision::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
 use crate::workspace;
 
 /// Finger half extents: along the jaw, across it, and vertically (a 5 cm finger).

@@ -9,6 +9,7 @@
 pub mod arrangement;
 pub mod camera;
 pub mod catalogue;
+mod collision;
 pub mod config;
 pub mod error;
 mod gripper;

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 use rapier3d::prelude::*;
 
 use crate::catalogue::{BLOCK_DENSITY, BLOCK_FRICTION, ShapeKind};
+use crate::collision::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
 use crate::config::SimConfig;
 use crate::error::SimError;
 use crate::gripper::Gripper;
@@ -12,11 +13,6 @@ use crate::workspace::{self, PixelGrid};
 
 /// An object's id: 1..=255, 0 is the table in the id heightmap.
 pub type ObjectId = u8;
-
-/// Collision groups: the gripper touches the table and the objects but not itself.
-pub(crate) const TABLE_GROUP: Group = Group::GROUP_1;
-pub(crate) const OBJECT_GROUP: Group = Group::GROUP_2;
-pub(crate) const GRIPPER_GROUP: Group = Group::GROUP_3;
 
 /// Speeds below which an object counts as at rest, and for how many steps in a row.
 const REST_LINEAR: f32 = 0.005;
