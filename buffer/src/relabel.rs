@@ -1,0 +1,182 @@
+//! Episode assembly and goal relabelling, as the paper says: when an episode's grasp picks a
+//! non-goal object g', that grasp is stored again with goal g' and its reward recomputed for
+//! g' (1), and so are the episode's pushes before it ("such a push sequence is beneficial for
+//! its grasping").
+//!
+//! A copy differs from its original only in `goal` and `reward`: goal masks are derived from
+//! the stored id maps (`Transition::goal_mask`), so nothing of a later scene is needed.
+//!
+//! The reward of a relabelled push: the actor's push reward is +0.5 when the goal's grasp Q
+//! rose by more than 0.1 and change detection fired around the goal, -0.5 when nothing
+//! changed around it, 0 otherwise. Change detection around g' is recomputed here from the
+//! stored observations (before: the push's own; after: the next step's). The grasp-Q
+//! improvement for g' is unknown to the buffer; the paper's premise that the sequence helped
+//! grasp g' stands in for it, so a relabelled push earns +0.5 when its surroundings of g'
+//! changed and -0.5 when they did not. Its bootstrap value is kept as the actor computed it
+//! (for the original goal): the buffer cannot evaluate a net.
+//!
+//! Pushes after the relabelled grasp, and pushes whose observation does not show g' (its goal
+//! mask would be empty, which the policy never acts on), are not copied.
+
+use std::collections::BTreeMap;
+
+use actor::PUSH_REWARD;
+use serde::{Deserialize, Serialize};
+use sim::measure::detect_change;
+use sim::{ObjectId, Primitive};
+
+use crate::error::AssembleError;
+use crate::transition::Transition;
+
+/// A step waiting for its episode to end, with the actor's initial priority (|TD error|).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Pending {
+    pub transition: Transition,
+    pub priority: Option<f64>,
+}
+
+/// A transition ready to store.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ready {
+    pub transition: Transition,
+    /// The actor's priority for originals; `None` (the buffer's largest priority, as for any
+    /// unseen experience) for relabelled copies, whose TD error nobody has computed.
+    pub priority: Option<f64>,
+    /// Whether this is a relabelled copy.
+    pub relabelled: bool,
+}
+
+/// Collects each open episode's steps until it ends.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeAssembler {
+    open: BTreeMap<u64, BTreeMap<u32, Pending>>,
+    relabelled: u64,
+}
+
+impl EpisodeAssembler {
+    /// No open episodes.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a step to its episode; a step index received twice, or a priority that is not a
+    /// finite number >= 0, is refused.
+    pub fn add(
+        &mut self,
+        transition: Transition,
+        priority: Option<f64>,
+    ) -> Result<(), AssembleError> {
+        let (episode, step) = (transition.episode, transition.step);
+        if let Some(priority) = priority.filter(|p| !(p.is_finite() && *p >= 0.0)) {
+            return Err(AssembleError::BadPriority {
+                episode,
+                step,
+                priority,
+            });
+        }
+        let steps = self.open.entry(episode).or_default();
+        if steps.contains_key(&step) {
+            return Err(AssembleError::DuplicateStep { episode, step });
+        }
+        steps.insert(
+            step,
+            Pending {
+                transition,
+                priority,
+            },
+        );
+        Ok(())
+    }
+
+    /// Episodes with steps and no end yet.
+    pub fn open_episodes(&self) -> usize {
+        self.open.len()
+    }
+
+    /// Relabelled copies produced so far.
+    pub fn relabelled(&self) -> u64 {
+        self.relabelled
+    }
+
+    /// Ends an episode whose final grasp picked `grasped` (or nothing), and returns its steps
+    /// in order, followed by the relabelled copies the paper implies. On an error the
+    /// episode stays open, untouched, so its steps can still be [`flush`](Self::flush)ed.
+    pub fn end(
+        &mut self,
+        episode: u64,
+        grasped: Option<ObjectId>,
+    ) -> Result<Vec<Ready>, AssembleError> {
+        let steps = self
+            .open
+            .get(&episode)
+            .ok_or(AssembleError::UnknownEpisode(episode))?;
+        if let Some(missing) = (0..)
+            .zip(steps.keys())
+            .find(|(i, s)| i != *s)
+            .map(|(i, _)| i)
+        {
+            return Err(AssembleError::MissingStep { episode, missing });
+        }
+        let ordered: Vec<&Transition> = steps.values().map(|p| &p.transition).collect();
+        let copies = match grasped {
+            Some(object) => {
+                relabel(&ordered, object).ok_or(AssembleError::GraspNotFound { episode, object })?
+            }
+            None => Vec::new(),
+        };
+        self.relabelled += copies.len() as u64;
+        let mut ready = self.flush(episode);
+        ready.extend(copies.into_iter().map(|transition| Ready {
+            transition,
+            priority: None,
+            relabelled: true,
+        }));
+        Ok(ready)
+    }
+
+    /// Closes an episode without relabelling (an actor that died mid-episode) and returns its
+    /// steps in order, so none is lost; an unknown episode gives nothing.
+    pub fn flush(&mut self, episode: u64) -> Vec<Ready> {
+        self.open
+            .remove(&episode)
+            .into_iter()
+            .flat_map(|steps| steps.into_values())
+            .map(|p| Ready {
+                transition: p.transition,
+                priority: p.priority,
+                relabelled: false,
+            })
+            .collect()
+    }
+}
+
+/// The relabelled copies of a contiguous episode (`steps[i].step == i`) whose last grasp of
+/// `object` is the episode's outcome; `None` when no grasp picked `object`.
+fn relabel(steps: &[&Transition], object: ObjectId) -> Option<Vec<Transition>> {
+    let grasp = steps
+        .iter()
+        .rposition(|t| t.primitive() == Primitive::Grasp && t.grasped == Some(object))?;
+    if steps[grasp].goal == object {
+        // The goal itself was grasped: the original already says so.
+        return Some(Vec::new());
+    }
+    let mut copies = Vec::new();
+    for (t, next) in steps[..grasp].iter().zip(&steps[1..=grasp]) {
+        if t.primitive() != Primitive::Push || t.goal == object || !t.obs.ids.contains(&object) {
+            continue;
+        }
+        let changed = detect_change(&t.obs, &next.obs, object).detected;
+        copies.push(Transition {
+            goal: object,
+            reward: if changed { PUSH_REWARD } else { -PUSH_REWARD },
+            ..(*t).clone()
+        });
+    }
+    copies.push(Transition {
+        goal: object,
+        // The grasp reward for g': it picked g'.
+        reward: 1.0,
+        ..steps[grasp].clone()
+    });
+    Some(copies)
+}

@@ -1,0 +1,324 @@
+//! Proportional prioritised replay (Schaul et al.; Ape-X's initial priorities): one ring and
+//! one sum tree per primitive, so push and grasp batches are drawn from their own experience
+//! at their own priorities.
+
+use rand::{Rng, RngExt};
+use serde::{Deserialize, Serialize};
+use sim::Primitive;
+
+use crate::config::BufferConfig;
+use crate::error::{ConfigError, ReplayError};
+use crate::sum_tree::SumTree;
+use crate::transition::Transition;
+
+/// A stable name for a stored item: priority updates carry it back from the learner.
+/// `generation` counts the inserts into the primitive's ring, so once a slot is overwritten
+/// the old key no longer matches and its update is ignored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct Key {
+    pub primitive: Primitive,
+    pub slot: u32,
+    pub generation: u64,
+}
+
+/// One sampled item.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BatchItem<'a> {
+    pub key: Key,
+    pub transition: &'a Transition,
+    /// P(i) = p_i^alpha / sum_k p_k^alpha at the time of sampling.
+    pub probability: f64,
+    /// The importance-sampling weight (N P(i))^-beta divided by the batch's largest.
+    pub weight: f32,
+}
+
+/// A batch of one primitive, drawn with replacement.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Batch<'a> {
+    pub items: Vec<BatchItem<'a>>,
+    /// The beta the weights were computed with.
+    pub beta: f64,
+}
+
+/// Fixed-capacity storage of one primitive: a ring of transitions and the sum tree of their
+/// priorities raised to alpha.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct Ring {
+    items: Vec<Transition>,
+    /// The generation of the item in each slot.
+    generations: Vec<u64>,
+    /// The priority of each slot after the epsilon floor (the tree holds it raised to alpha).
+    priorities: Vec<f64>,
+    tree: SumTree,
+    /// Inserts so far: the next item's generation, and (mod capacity) its slot.
+    inserted: u64,
+    /// The largest priority given so far (before alpha), for items inserted without one.
+    max_priority: f64,
+}
+
+impl Ring {
+    fn new(capacity: usize) -> Self {
+        Self {
+            items: Vec::new(),
+            generations: Vec::new(),
+            priorities: Vec::new(),
+            tree: SumTree::new(capacity),
+            inserted: 0,
+            // Schaul et al. start at 1: new experience is seen at least once early on.
+            max_priority: 1.0,
+        }
+    }
+
+    fn capacity(&self) -> usize {
+        self.tree.capacity()
+    }
+
+    /// The slot `key` names if it still holds the item it was issued for.
+    fn live_slot(&self, key: &Key) -> Option<usize> {
+        let slot = key.slot as usize;
+        (self.generations.get(slot) == Some(&key.generation)).then_some(slot)
+    }
+
+    fn check(&self, capacity: usize) -> Result<(), String> {
+        let len = self.items.len();
+        let expected = usize::try_from(self.inserted).map_or(capacity, |n| n.min(capacity));
+        if self.tree.capacity() != capacity
+            || len != expected
+            || self.generations.len() != len
+            || self.priorities.len() != len
+        {
+            return Err(format!(
+                "a ring of capacity {} holds {len} items and {} generations after {} inserts, \
+                 the config says capacity {capacity}",
+                self.tree.capacity(),
+                self.generations.len(),
+                self.inserted
+            ));
+        }
+        if (len..capacity).any(|slot| self.tree.get(slot) != 0.0) {
+            return Err("an empty slot has a priority".into());
+        }
+        Ok(())
+    }
+}
+
+/// Push and grasp rings with proportional prioritisation and annealed importance sampling.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PrioritizedReplay {
+    alpha: f64,
+    beta_start: f64,
+    beta_anneal_samples: u64,
+    epsilon: f64,
+    push: Ring,
+    grasp: Ring,
+    /// Items sampled so far over both primitives: the clock of beta's annealing.
+    sampled: u64,
+    /// Priority updates dropped because their slot had been overwritten (or never existed).
+    stale_updates: u64,
+}
+
+impl PrioritizedReplay {
+    /// Empty rings of `config.capacity` each.
+    pub fn new(config: &BufferConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        Ok(Self {
+            alpha: config.alpha,
+            beta_start: config.beta_start,
+            beta_anneal_samples: config.beta_anneal_samples,
+            epsilon: config.priority_epsilon,
+            push: Ring::new(config.capacity),
+            grasp: Ring::new(config.capacity),
+            sampled: 0,
+            stale_updates: 0,
+        })
+    }
+
+    fn ring(&self, primitive: Primitive) -> &Ring {
+        match primitive {
+            Primitive::Push => &self.push,
+            Primitive::Grasp => &self.grasp,
+        }
+    }
+
+    fn ring_mut(&mut self, primitive: Primitive) -> &mut Ring {
+        match primitive {
+            Primitive::Push => &mut self.push,
+            Primitive::Grasp => &mut self.grasp,
+        }
+    }
+
+    /// Slots per primitive.
+    pub fn capacity(&self) -> usize {
+        self.push.capacity()
+    }
+
+    /// Transitions held for `primitive`.
+    pub fn len(&self, primitive: Primitive) -> usize {
+        self.ring(primitive).items.len()
+    }
+
+    /// Whether nothing of `primitive` is held.
+    pub fn is_empty(&self, primitive: Primitive) -> bool {
+        self.len(primitive) == 0
+    }
+
+    /// Transitions ever inserted for `primitive`, overwritten ones included.
+    pub fn inserted(&self, primitive: Primitive) -> u64 {
+        self.ring(primitive).inserted
+    }
+
+    /// Items sampled so far, both primitives.
+    pub fn sampled(&self) -> u64 {
+        self.sampled
+    }
+
+    /// Priority updates ignored because their item was gone.
+    pub fn stale_updates(&self) -> u64 {
+        self.stale_updates
+    }
+
+    /// The beta the next batch gets: `beta_start`, rising linearly with sampled items to 1
+    /// after `beta_anneal_samples`.
+    pub fn beta(&self) -> f64 {
+        if self.sampled >= self.beta_anneal_samples {
+            return 1.0;
+        }
+        let progress = self.sampled as f64 / self.beta_anneal_samples as f64;
+        self.beta_start + (1.0 - self.beta_start) * progress
+    }
+
+    /// The priority of a live item (after the epsilon floor, before alpha).
+    pub fn priority(&self, key: &Key) -> Option<f64> {
+        let ring = self.ring(key.primitive);
+        ring.live_slot(key).map(|slot| ring.priorities[slot])
+    }
+
+    /// The stored transition a key names, while it is still there.
+    pub fn get(&self, key: &Key) -> Option<&Transition> {
+        let ring = self.ring(key.primitive);
+        ring.live_slot(key).map(|slot| &ring.items[slot])
+    }
+
+    /// Stores a transition in its primitive's ring, overwriting the oldest when full, at
+    /// `priority` (the actor's |TD error|, Ape-X) or, without one, the largest priority
+    /// given so far. Priorities below epsilon are raised to it.
+    pub fn insert(
+        &mut self,
+        transition: Transition,
+        priority: Option<f64>,
+    ) -> Result<Key, ReplayError> {
+        if let Some(p) = priority {
+            check_priority(p)?;
+        }
+        let (alpha, epsilon) = (self.alpha, self.epsilon);
+        let ring = self.ring_mut(transition.primitive());
+        let p = priority.unwrap_or(ring.max_priority).max(epsilon);
+        ring.max_priority = ring.max_priority.max(p);
+        let generation = ring.inserted;
+        let slot = (generation % ring.capacity() as u64) as usize;
+        if slot == ring.items.len() {
+            ring.items.push(transition);
+            ring.generations.push(generation);
+            ring.priorities.push(p);
+        } else {
+            ring.items[slot] = transition;
+            ring.generations[slot] = generation;
+            ring.priorities[slot] = p;
+        }
+        ring.tree.set(slot, p.powf(alpha));
+        ring.inserted += 1;
+        Ok(Key {
+            primitive: ring.items[slot].primitive(),
+            slot: slot as u32,
+            generation,
+        })
+    }
+
+    /// Sets the priority of the item `key` names (floored at epsilon); returns false, and
+    /// counts a stale update, when that item has been overwritten.
+    pub fn update_priority(&mut self, key: &Key, priority: f64) -> Result<bool, ReplayError> {
+        check_priority(priority)?;
+        let (alpha, epsilon) = (self.alpha, self.epsilon);
+        let ring = self.ring_mut(key.primitive);
+        let Some(slot) = ring.live_slot(key) else {
+            self.stale_updates += 1;
+            return Ok(false);
+        };
+        let p = priority.max(epsilon);
+        ring.max_priority = ring.max_priority.max(p);
+        ring.priorities[slot] = p;
+        ring.tree.set(slot, p.powf(alpha));
+        Ok(true)
+    }
+
+    /// Draws `n` items of `primitive` with replacement, with probability proportional to
+    /// priority^alpha, one from each of `n` equal strata of the total (lower variance than
+    /// independent draws, the same marginal probabilities), and their importance-sampling
+    /// weights at the current beta. Advances beta's clock by `n`.
+    pub fn sample(
+        &mut self,
+        primitive: Primitive,
+        n: usize,
+        rng: &mut impl Rng,
+    ) -> Result<Batch<'_>, ReplayError> {
+        if n == 0 {
+            return Err(ReplayError::EmptyBatch);
+        }
+        if self.is_empty(primitive) {
+            return Err(ReplayError::Empty(primitive));
+        }
+        let beta = self.beta();
+        self.sampled += n as u64;
+        let ring = self.ring(primitive);
+        // Every live slot has at least epsilon^alpha > 0, so the total is positive.
+        let total = ring.tree.total();
+        let len = ring.items.len() as f64;
+        let stratum = total / n as f64;
+        let mut items: Vec<BatchItem<'_>> = (0..n)
+            .map(|i| {
+                let prefix = (i as f64 + rng.random::<f64>()) * stratum;
+                let slot = ring.tree.find(prefix).expect("total is positive");
+                let probability = ring.tree.get(slot) / total;
+                BatchItem {
+                    key: Key {
+                        primitive,
+                        slot: slot as u32,
+                        generation: ring.generations[slot],
+                    },
+                    transition: &ring.items[slot],
+                    probability,
+                    weight: (len * probability).powf(-beta) as f32,
+                }
+            })
+            .collect();
+        let max_weight = items.iter().map(|i| i.weight).fold(0.0f32, f32::max);
+        for item in &mut items {
+            item.weight /= max_weight;
+        }
+        Ok(Batch { items, beta })
+    }
+
+    /// Checks the invariants a snapshot must satisfy against the config it carries.
+    pub(crate) fn check(&self, config: &BufferConfig) -> Result<(), String> {
+        self.push.check(config.capacity)?;
+        self.grasp.check(config.capacity)?;
+        let rings = [
+            (&self.push, Primitive::Push),
+            (&self.grasp, Primitive::Grasp),
+        ];
+        for (ring, primitive) in rings {
+            if ring.items.iter().any(|t| t.primitive() != primitive) {
+                return Err(format!("the {primitive:?} ring holds another primitive"));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn check_priority(p: f64) -> Result<(), ReplayError> {
+    if p.is_finite() && p >= 0.0 {
+        Ok(())
+    } else {
+        Err(ReplayError::BadPriority(p))
+    }
+}

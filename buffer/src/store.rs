@@ -1,0 +1,166 @@
+//! The buffer as one value: the prioritised replay, the rate limiter and the episode
+//! assembler, kept consistent with each other (what the buffer role runs and snapshots).
+
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use sim::{ObjectId, Primitive};
+
+use crate::config::BufferConfig;
+use crate::error::{AssembleError, ConfigError, ReplayError};
+use crate::rate_limit::RateLimiter;
+use crate::relabel::{EpisodeAssembler, Ready};
+use crate::replay::{Batch, Key, PrioritizedReplay};
+use crate::transition::Transition;
+
+/// Counters for progress displays and logs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stats {
+    pub push_len: usize,
+    pub grasp_len: usize,
+    /// Items ever stored, relabelled copies included.
+    pub inserted: u64,
+    pub sampled: u64,
+    pub relabelled: u64,
+    pub stale_updates: u64,
+    pub open_episodes: usize,
+}
+
+/// Prioritised replay with episode assembly, goal relabelling and a samples-per-insert limit.
+///
+/// Inserts are never refused (a step an actor sent must not be lost): the wiring pauses
+/// reading its transport while [`can_insert`](Self::can_insert) says no. Sampling past the
+/// ratio is refused with [`ReplayError::RateLimited`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReplayBuffer {
+    config: BufferConfig,
+    replay: PrioritizedReplay,
+    limiter: RateLimiter,
+    assembler: EpisodeAssembler,
+}
+
+impl ReplayBuffer {
+    /// An empty buffer.
+    pub fn new(config: BufferConfig) -> Result<Self, ConfigError> {
+        Ok(Self {
+            replay: PrioritizedReplay::new(&config)?,
+            limiter: RateLimiter::from_config(&config)?,
+            assembler: EpisodeAssembler::new(),
+            config,
+        })
+    }
+
+    pub fn config(&self) -> &BufferConfig {
+        &self.config
+    }
+
+    /// The stored transitions and their priorities.
+    pub fn replay(&self) -> &PrioritizedReplay {
+        &self.replay
+    }
+
+    /// The limiter's counts.
+    pub fn limiter(&self) -> &RateLimiter {
+        &self.limiter
+    }
+
+    /// Holds a step until its episode ends, with the actor's initial priority.
+    pub fn add_step(
+        &mut self,
+        transition: Transition,
+        priority: Option<f64>,
+    ) -> Result<(), AssembleError> {
+        self.assembler.add(transition, priority)
+    }
+
+    /// Ends an episode: stores its steps and their relabelled copies; returns their keys in
+    /// the order of [`EpisodeAssembler::end`].
+    pub fn end_episode(
+        &mut self,
+        episode: u64,
+        grasped: Option<ObjectId>,
+    ) -> Result<Vec<Key>, AssembleError> {
+        let ready = self.assembler.end(episode, grasped)?;
+        Ok(self.store(ready))
+    }
+
+    /// Stores an episode's steps as they are (its actor died before the end).
+    pub fn flush_episode(&mut self, episode: u64) -> Vec<Key> {
+        let ready = self.assembler.flush(episode);
+        self.store(ready)
+    }
+
+    fn store(&mut self, ready: Vec<Ready>) -> Vec<Key> {
+        ready
+            .into_iter()
+            .map(|r| {
+                let primitive = r.transition.primitive();
+                if self.replay.len(primitive) == self.replay.capacity() {
+                    self.limiter.on_delete(1);
+                }
+                self.limiter.on_insert(1);
+                self.replay
+                    .insert(r.transition, r.priority)
+                    .expect("priorities were checked when the step arrived")
+            })
+            .collect()
+    }
+
+    /// Whether `n` more items may be inserted without outrunning the learner.
+    pub fn can_insert(&self, n: u64) -> bool {
+        self.limiter.can_insert(n)
+    }
+
+    /// Whether a batch of `n` may be drawn now.
+    pub fn can_sample(&self, n: u64) -> bool {
+        self.limiter.can_sample(n)
+    }
+
+    /// Draws a batch of `primitive` if the rate limiter allows `n` samples.
+    pub fn sample(
+        &mut self,
+        primitive: Primitive,
+        n: usize,
+        rng: &mut impl Rng,
+    ) -> Result<Batch<'_>, ReplayError> {
+        if !self.limiter.can_sample(n as u64) {
+            return Err(ReplayError::RateLimited {
+                inserts: self.limiter.inserts(),
+                samples: self.limiter.samples(),
+            });
+        }
+        let batch = self.replay.sample(primitive, n, rng)?;
+        self.limiter.on_sample(n as u64);
+        Ok(batch)
+    }
+
+    /// Applies the learner's new priorities; returns how many still had their item.
+    pub fn update_priorities(&mut self, updates: &[(Key, f64)]) -> Result<usize, ReplayError> {
+        let mut applied = 0;
+        for (key, priority) in updates {
+            applied += usize::from(self.replay.update_priority(key, *priority)?);
+        }
+        Ok(applied)
+    }
+
+    pub fn stats(&self) -> Stats {
+        Stats {
+            push_len: self.replay.len(Primitive::Push),
+            grasp_len: self.replay.len(Primitive::Grasp),
+            inserted: self.replay.inserted(Primitive::Push)
+                + self.replay.inserted(Primitive::Grasp),
+            sampled: self.replay.sampled(),
+            relabelled: self.assembler.relabelled(),
+            stale_updates: self.replay.stale_updates(),
+            open_episodes: self.assembler.open_episodes(),
+        }
+    }
+
+    /// Checks that a restored buffer is consistent with its own config.
+    pub(crate) fn check(&self) -> Result<(), String> {
+        self.config.validate().map_err(|e| e.to_string())?;
+        if RateLimiter::from_config(&self.config).is_err() {
+            return Err("the rate limiter settings are invalid".into());
+        }
+        self.replay.check(&self.config)
+    }
+}

@@ -1,0 +1,135 @@
+//! One stored step: what the learner needs to train on it (observation, goal, action, label
+//! inputs) and what relabelling needs (the episode, the step index, the object grasped).
+
+use serde::{Deserialize, Serialize};
+use sim::{Action, Heightmaps, ObjectId, PixelGrid, Primitive};
+
+/// A step of an episode as the buffer keeps it.
+///
+/// The goal mask is not stored: it is `obs.goal_mask(goal)`, derived from the stored id map,
+/// so a relabelled copy needs only a different `goal`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Transition {
+    /// The episode, unique across every actor of a run (the wiring combines actor and
+    /// episode counter); steps of one episode are assembled and relabelled together.
+    pub episode: u64,
+    /// The step's index within its episode, from 0 without gaps.
+    pub step: u32,
+    /// The goal this copy is stored for.
+    pub goal: ObjectId,
+    /// The observation the action was chosen on.
+    #[serde(with = "maps_serde")]
+    pub obs: Heightmaps,
+    pub action: Action,
+    /// The reward for `goal`.
+    pub reward: f32,
+    /// The object the action grasped, if it was a grasp that held one.
+    pub grasped: Option<ObjectId>,
+    /// The actor's bootstrap value of the next state, `None` when the scene ended with this
+    /// step; the learner turns reward and next value into a label (`learner::label`).
+    pub next_value: Option<f32>,
+}
+
+impl Transition {
+    /// Push or grasp: which storage the step belongs to.
+    pub fn primitive(&self) -> Primitive {
+        self.action.primitive
+    }
+
+    /// Whether this is a grasp that picked this copy's goal.
+    pub fn goal_grasped(&self) -> bool {
+        self.grasped == Some(self.goal)
+    }
+
+    /// The goal mask the learner feeds the nets: the goal's pixels in the stored id map.
+    pub fn goal_mask(&self) -> Vec<bool> {
+        self.obs.goal_mask(self.goal)
+    }
+}
+
+/// `sim::Heightmaps` is not serde-aware; it travels as its pixel size and three maps, and is
+/// checked on the way back in (the pixel size must give a valid grid, and the maps its size).
+mod maps_serde {
+    use super::*;
+    use serde::de::Error;
+    use serde::{Deserializer, Serializer};
+
+    #[derive(Serialize)]
+    struct MapsRef<'a> {
+        pixel_size: f32,
+        colour: &'a [[u8; 3]],
+        height: &'a [f32],
+        ids: &'a [ObjectId],
+    }
+
+    #[derive(Deserialize)]
+    struct MapsOwned {
+        pixel_size: f32,
+        colour: Vec<[u8; 3]>,
+        height: Vec<f32>,
+        ids: Vec<ObjectId>,
+    }
+
+    pub fn serialize<S: Serializer>(maps: &Heightmaps, serializer: S) -> Result<S::Ok, S::Error> {
+        MapsRef {
+            pixel_size: maps.grid.pixel_size(),
+            colour: &maps.colour,
+            height: &maps.height,
+            ids: &maps.ids,
+        }
+        .serialize(serializer)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<Heightmaps, D::Error> {
+        let m = MapsOwned::deserialize(deserializer)?;
+        let grid = PixelGrid::new(m.pixel_size).map_err(D::Error::custom)?;
+        let n = grid.len();
+        if m.colour.len() != n || m.height.len() != n || m.ids.len() != n {
+            return Err(D::Error::custom(format!(
+                "heightmaps of {} / {} / {} pixels on a grid of {n}",
+                m.colour.len(),
+                m.height.len(),
+                m.ids.len()
+            )));
+        }
+        Ok(Heightmaps {
+            grid,
+            colour: m.colour,
+            height: m.height,
+            ids: m.ids,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(primitive: Primitive, goal: ObjectId, grasped: Option<ObjectId>) -> Transition {
+        Transition {
+            episode: 0,
+            step: 0,
+            goal,
+            obs: Heightmaps::new(PixelGrid::new(0.004).unwrap()),
+            action: Action {
+                primitive,
+                rotation: 0,
+                row: 0,
+                col: 0,
+            },
+            reward: 0.0,
+            grasped,
+            next_value: Some(1.5),
+        }
+    }
+
+    #[test]
+    fn the_goal_mask_comes_from_the_stored_ids() {
+        let mut t = step(Primitive::Grasp, 7, None);
+        t.obs.ids[5] = 7;
+        t.obs.ids[6] = 2;
+        let mask = t.goal_mask();
+        assert_eq!(mask.iter().filter(|m| **m).count(), 1);
+        assert!(mask[5]);
+    }
+}
