@@ -198,24 +198,17 @@ pub fn run(args: &SingleArgs) -> Result<()> {
         };
 
         // Observe and choose.
-        let input = NetInput::encode(&obs, goal);
-        let grasp_maps = nets.all_rotations(sim::Primitive::Grasp, &input, trainer.geometry())?;
         let epsilon = if args.random {
             1.0
         } else {
             config.policy.epsilon(episode as u64)
         };
-        let policy_input = PolicyInput {
-            obs: &obs,
+        let decision = choose_grasp(
+            &config,
+            &nets,
+            trainer.geometry(),
+            &obs,
             goal,
-            grasp: &grasp_maps,
-            push: None,
-            pushes_so_far: 0,
-        };
-        let decision = actor::choose(
-            &config.policy,
-            Mode::GraspOnly,
-            &policy_input,
             epsilon,
             &mut rng,
         )?;
@@ -334,6 +327,35 @@ pub fn run(args: &SingleArgs) -> Result<()> {
     Ok(())
 }
 
+/// The grasp-only policy's decision on an observation: Q maps for every rotation, then the
+/// epsilon-greedy choice inside the goal mask.
+fn choose_grasp(
+    config: &SingleConfig,
+    nets: &QNets,
+    geometry: &qnet::Geometry,
+    obs: &Heightmaps,
+    goal: ObjectId,
+    epsilon: f32,
+    rng: &mut ChaCha8Rng,
+) -> Result<actor::Decision> {
+    let input = NetInput::encode(obs, goal);
+    let grasp = nets.all_rotations(sim::Primitive::Grasp, &input, geometry)?;
+    let policy_input = PolicyInput {
+        obs,
+        goal,
+        grasp: &grasp,
+        push: None,
+        pushes_so_far: 0,
+    };
+    Ok(actor::choose(
+        &config.policy,
+        Mode::GraspOnly,
+        &policy_input,
+        epsilon,
+        rng,
+    )?)
+}
+
 /// Grasps with the given nets on scenes none of training saw (seeded apart from them), a few
 /// goals per scene: (goal grasps, attempts).
 fn evaluate(
@@ -357,22 +379,7 @@ fn evaluate(
             let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {
                 break;
             };
-            let input = NetInput::encode(&obs, goal);
-            let grasp = nets.all_rotations(sim::Primitive::Grasp, &input, geometry)?;
-            let policy_input = PolicyInput {
-                obs: &obs,
-                goal,
-                grasp: &grasp,
-                push: None,
-                pushes_so_far: 0,
-            };
-            let decision = actor::choose(
-                &config.policy,
-                Mode::GraspOnly,
-                &policy_input,
-                epsilon,
-                &mut rng,
-            )?;
+            let decision = choose_grasp(config, nets, geometry, &obs, goal, epsilon, &mut rng)?;
             let outcome = tabletop.act(&decision.action, &obs)?;
             successes += usize::from(outcome.grasped == Some(goal));
             done += 1;
