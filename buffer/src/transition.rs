@@ -2,7 +2,7 @@
 //! inputs) and what relabelling needs (the episode, the step index, the object grasped).
 
 use serde::{Deserialize, Serialize};
-use sim::{Action, Heightmaps, ObjectId, PixelGrid, Primitive};
+use sim::{Action, Heightmaps, ObjectId, Primitive};
 
 /// A step of an episode as the buffer keeps it.
 ///
@@ -18,7 +18,6 @@ pub struct Transition {
     /// The goal this copy is stored for.
     pub goal: ObjectId,
     /// The observation the action was chosen on.
-    #[serde(with = "maps_serde")]
     pub obs: Heightmaps,
     pub action: Action,
     /// The reward for `goal`.
@@ -47,63 +46,10 @@ impl Transition {
     }
 }
 
-/// `sim::Heightmaps` is not serde-aware; it travels as its pixel size and three maps, and is
-/// checked on the way back in (the pixel size must give a valid grid, and the maps its size).
-mod maps_serde {
-    use super::*;
-    use serde::de::Error;
-    use serde::{Deserializer, Serializer};
-
-    #[derive(Serialize)]
-    struct MapsRef<'a> {
-        pixel_size: f32,
-        colour: &'a [[u8; 3]],
-        height: &'a [f32],
-        ids: &'a [ObjectId],
-    }
-
-    #[derive(Deserialize)]
-    struct MapsOwned {
-        pixel_size: f32,
-        colour: Vec<[u8; 3]>,
-        height: Vec<f32>,
-        ids: Vec<ObjectId>,
-    }
-
-    pub fn serialize<S: Serializer>(maps: &Heightmaps, serializer: S) -> Result<S::Ok, S::Error> {
-        MapsRef {
-            pixel_size: maps.grid.pixel_size(),
-            colour: &maps.colour,
-            height: &maps.height,
-            ids: &maps.ids,
-        }
-        .serialize(serializer)
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<Heightmaps, D::Error> {
-        let m = MapsOwned::deserialize(deserializer)?;
-        let grid = PixelGrid::new(m.pixel_size).map_err(D::Error::custom)?;
-        let n = grid.len();
-        if m.colour.len() != n || m.height.len() != n || m.ids.len() != n {
-            return Err(D::Error::custom(format!(
-                "heightmaps of {} / {} / {} pixels on a grid of {n}",
-                m.colour.len(),
-                m.height.len(),
-                m.ids.len()
-            )));
-        }
-        Ok(Heightmaps {
-            grid,
-            colour: m.colour,
-            height: m.height,
-            ids: m.ids,
-        })
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sim::PixelGrid;
 
     fn step(primitive: Primitive, goal: ObjectId, grasped: Option<ObjectId>) -> Transition {
         Transition {

@@ -7,6 +7,9 @@
 //! footprint are visited. (parry's ray casts on hulls give false hits up to 2 cm outside the
 //! shape, and casting every pixel against the scene is an order of magnitude slower.)
 
+use serde::de::Error;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
 use crate::tabletop::{ObjectId, Tabletop};
 use crate::workspace::{self, PixelGrid};
 
@@ -56,6 +59,58 @@ impl Heightmaps {
             seen[id as usize] = true;
         }
         (1..=255u8).filter(|&id| seen[id as usize]).collect()
+    }
+}
+
+/// Heightmaps travel (replay, snapshots, messages) as their pixel size and three maps, and
+/// are checked on the way back in: the pixel size must make a grid and the maps its size.
+#[derive(Serialize)]
+struct HeightmapsRef<'a> {
+    pixel_size: f32,
+    colour: &'a [[u8; 3]],
+    height: &'a [f32],
+    ids: &'a [ObjectId],
+}
+
+#[derive(Deserialize)]
+struct HeightmapsData {
+    pixel_size: f32,
+    colour: Vec<[u8; 3]>,
+    height: Vec<f32>,
+    ids: Vec<ObjectId>,
+}
+
+impl Serialize for Heightmaps {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        HeightmapsRef {
+            pixel_size: self.grid.pixel_size(),
+            colour: &self.colour,
+            height: &self.height,
+            ids: &self.ids,
+        }
+        .serialize(serializer)
+    }
+}
+
+impl<'de> Deserialize<'de> for Heightmaps {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let data = HeightmapsData::deserialize(deserializer)?;
+        let grid = PixelGrid::new(data.pixel_size).map_err(D::Error::custom)?;
+        let n = grid.len();
+        if data.colour.len() != n || data.height.len() != n || data.ids.len() != n {
+            return Err(D::Error::custom(format!(
+                "heightmaps of {} colour, {} height and {} id pixels on a grid of {n}",
+                data.colour.len(),
+                data.height.len(),
+                data.ids.len()
+            )));
+        }
+        Ok(Self {
+            grid,
+            colour: data.colour,
+            height: data.height,
+            ids: data.ids,
+        })
     }
 }
 

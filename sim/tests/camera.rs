@@ -244,3 +244,22 @@ fn change_is_detected_when_the_goals_surroundings_clear() {
     assert_eq!(coarse.changed_pixels_needed, 13);
     assert!(coarse.detected, "{coarse:?}");
 }
+
+#[test]
+fn heightmaps_round_trip_through_serde_and_refuse_a_wrong_size() {
+    // 0.056 m pixels: an 8 x 8 grid keeps the text small.
+    let config = SimConfig::with_pixel_size(0.056);
+    let (tabletop, _) = Tabletop::random(&config, 3, 5).unwrap();
+    let maps = render(&tabletop);
+    let text = toml::to_string(&maps).unwrap();
+    let back: Heightmaps = toml::from_str(&text).unwrap();
+    assert_eq!(back, maps);
+
+    let mut short: toml::Table = toml::from_str(&text).unwrap();
+    short["ids"].as_array_mut().unwrap().pop();
+    let error = toml::from_str::<Heightmaps>(&short.to_string()).unwrap_err();
+    assert!(
+        error.to_string().contains("63 id pixels on a grid of 64"),
+        "{error}"
+    );
+}
