@@ -11,6 +11,8 @@ use serde::Serialize;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop};
 
+use crate::mask_shape::MaskShape;
+
 #[derive(Subcommand)]
 pub enum BenchCommand {
     /// The simulator: scene settling, heightmaps, primitives, grasp and push quality.
@@ -316,17 +318,6 @@ fn object_pixel(maps: &Heightmaps, rng: &mut ChaCha8Rng) -> Option<(usize, usize
     })
 }
 
-/// The centroid pixel of an object's visible part, and how many pixels it covers.
-fn centroid(maps: &Heightmaps, id: u8) -> Option<((usize, usize), usize)> {
-    let (mut rows, mut cols, mut n) = (0usize, 0usize, 0usize);
-    for (i, _) in maps.ids.iter().enumerate().filter(|(_, v)| **v == id) {
-        rows += i / maps.side();
-        cols += i % maps.side();
-        n += 1;
-    }
-    (n > 0).then(|| ((rows / n, cols / n), n))
-}
-
 /// Adds cube `id` within 10 cm of the workspace centre with a random yaw, released at
 /// height `z`, and settles.
 fn add_random_cube(tabletop: &mut Tabletop, id: u8, z: f32, rng: &mut ChaCha8Rng) -> Result<()> {
@@ -355,7 +346,9 @@ fn grasp_visible(
     rng: &mut ChaCha8Rng,
 ) -> Result<Option<bool>> {
     let maps = Camera::new(tabletop.grid()).render(tabletop);
-    let Some(((row, col), _)) = centroid(&maps, id).filter(|(_, n)| *n >= min_visible) else {
+    let Some(MaskShape { row, col, .. }) =
+        MaskShape::of(&maps, id).filter(|shape| shape.pixels >= min_visible)
+    else {
         return Ok(None);
     };
     let action = Action {
@@ -427,7 +420,7 @@ fn push_displacements(config: &SimConfig, trials: usize) -> Result<f64> {
         let before = tabletop.object(1).expect("cube").pose.translation;
         let maps = Camera::new(tabletop.grid()).render(&tabletop);
         let rotation = rng.random_range(0..ROTATIONS);
-        let angle = rotation as f32 * std::f32::consts::TAU / ROTATIONS as f32;
+        let angle = sim::rotation_angle(rotation);
         let start = before - 0.05 * Vector::new(angle.cos(), angle.sin(), 0.0);
         let Some((row, col)) = tabletop.grid().pixel_of(start.x, start.y) else {
             continue;

@@ -2,7 +2,6 @@
 //! simulator at work before any learning: grasp the goal across its narrow side, push along
 //! it when grasps fail, and write every observation as PNGs with a JSON summary.
 
-use std::f32::consts::PI;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -11,8 +10,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use sim::measure::{detect_change, occupancy_ratio};
-use sim::{Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop};
+use sim::{Action, Camera, ObjectId, Primitive, SimConfig, Tabletop};
 
+use crate::mask_shape::MaskShape;
 use crate::pictures;
 
 #[derive(Args)]
@@ -144,68 +144,4 @@ pub fn run(args: &EpisodeArgs) -> Result<()> {
         out.display()
     );
     Ok(())
-}
-
-/// Where the goal is seen and which way it is long: centroid and major-axis angle of its mask.
-struct MaskShape {
-    row: usize,
-    col: usize,
-    major_angle: f32,
-}
-
-impl MaskShape {
-    fn of(maps: &Heightmaps, goal: ObjectId) -> Option<Self> {
-        let pixels: Vec<(f32, f32)> = (0..maps.ids.len())
-            .filter(|&i| maps.ids[i] == goal)
-            .map(|i| ((i % maps.side()) as f32, (i / maps.side()) as f32))
-            .collect();
-        if pixels.is_empty() {
-            return None;
-        }
-        let n = pixels.len() as f32;
-        let (cx, cy) = pixels
-            .iter()
-            .fold((0.0, 0.0), |(x, y), p| (x + p.0 / n, y + p.1 / n));
-        let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
-        for (x, y) in &pixels {
-            sxx += (x - cx) * (x - cx);
-            syy += (y - cy) * (y - cy);
-            sxy += (x - cx) * (y - cy);
-        }
-        Some(Self {
-            row: cy.round() as usize,
-            col: cx.round() as usize,
-            // Columns run along x and rows along y, so image angles are world angles.
-            major_angle: 0.5 * (2.0 * sxy).atan2(sxx - syy),
-        })
-    }
-
-    fn rotation_of(angle: f32) -> u8 {
-        let step = 2.0 * PI / ROTATIONS as f32;
-        ((angle / step).round() as i32).rem_euclid(ROTATIONS as i32) as u8
-    }
-
-    /// Jaws closing across the narrow side, at the centroid.
-    fn grasp(&self) -> Action {
-        Action {
-            primitive: Primitive::Grasp,
-            rotation: Self::rotation_of(self.major_angle + PI / 2.0),
-            row: self.row,
-            col: self.col,
-        }
-    }
-
-    /// A push along the goal's long axis, starting 6 cm before its centroid.
-    fn push(&self, maps: &Heightmaps) -> Action {
-        let rotation = Self::rotation_of(self.major_angle);
-        let angle = rotation as f32 * 2.0 * PI / ROTATIONS as f32;
-        let back = 0.06 / maps.grid.pixel_size();
-        let clamp = |v: f32| v.round().clamp(0.0, (maps.side() - 1) as f32) as usize;
-        Action {
-            primitive: Primitive::Push,
-            rotation,
-            row: clamp(self.row as f32 - back * angle.sin()),
-            col: clamp(self.col as f32 - back * angle.cos()),
-        }
-    }
 }

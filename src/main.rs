@@ -3,6 +3,7 @@
 
 mod bench;
 mod episode;
+mod mask_shape;
 mod pictures;
 mod scene;
 mod single;

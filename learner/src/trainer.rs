@@ -195,11 +195,6 @@ impl Trainer {
         })
     }
 
-    /// The nets as they are now (autodiff form), for checkpoints.
-    pub fn nets(&self) -> &QNets {
-        &self.nets
-    }
-
     /// Replaces the weights (a resumed checkpoint).
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
         self.nets = self.nets.clone().load_bytes(bytes)?;

@@ -8,9 +8,7 @@
 //! original's nearest sampling); the outputs are rotated back with burn's bilinear
 //! `grid_sample`, which the learner differentiates through.
 
-use std::f32::consts::TAU;
-
-use sim::ROTATIONS;
+use sim::{ROTATIONS, rotation_angle};
 
 use crate::config::QNetConfig;
 use crate::error::QNetError;
@@ -30,11 +28,6 @@ pub struct Geometry {
     sources: Vec<Vec<u32>>,
 }
 
-/// The angle of rotation k in radians.
-pub fn angle(rotation: u8) -> f32 {
-    rotation as f32 * TAU / ROTATIONS as f32
-}
-
 impl Geometry {
     pub fn new(side: usize, config: &QNetConfig) -> Self {
         let downsample = config.downsample();
@@ -49,7 +42,7 @@ impl Geometry {
         let centre = padded as f32 / 2.0;
         let sources = (0..ROTATIONS)
             .map(|k| {
-                let (sin, cos) = angle(k).sin_cos();
+                let (sin, cos) = rotation_angle(k).sin_cos();
                 let mut table = Vec::with_capacity(padded * padded);
                 for row in 0..padded {
                     for col in 0..padded {
@@ -146,7 +139,7 @@ impl Geometry {
         let s = self.low_side();
         let mut grid = Vec::with_capacity(rotations.len() * s * s * 2);
         for &k in rotations {
-            let (sin, cos) = angle(k).sin_cos();
+            let (sin, cos) = rotation_angle(k).sin_cos();
             for row in 0..s {
                 for col in 0..s {
                     let u = (col as f32 + 0.5) / s as f32 * 2.0 - 1.0;

@@ -3,8 +3,8 @@
 
 use burn::prelude::*;
 use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
-use qnet::geometry::angle;
 use qnet::{Geometry, NetInput, QNetConfig};
+use sim::rotation_angle as angle;
 
 const SIDE: usize = 112;
 

@@ -24,7 +24,9 @@ pub use camera::{Camera, Heightmaps};
 pub use catalogue::{SLOT_COLOURS, ShapeKind};
 pub use config::SimConfig;
 pub use error::{ArrangementError, SimError};
-pub use primitives::{Action, ActionOutcome, Primitive, ROTATIONS};
+pub use primitives::{
+    Action, ActionOutcome, Primitive, ROTATIONS, nearest_rotation, rotation_angle,
+};
 pub use rapier3d;
 pub use scene::SceneReport;
 pub use tabletop::{ObjectId, ObjectView, SettleReport, Tabletop};

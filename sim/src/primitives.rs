@@ -61,8 +61,19 @@ pub struct Action {
 impl Action {
     /// The action's angle in radians.
     pub fn angle(&self) -> f32 {
-        self.rotation as f32 * 2.0 * PI / ROTATIONS as f32
+        rotation_angle(self.rotation)
     }
+}
+
+/// The angle of rotation k in radians.
+pub fn rotation_angle(rotation: u8) -> f32 {
+    rotation as f32 * 2.0 * PI / ROTATIONS as f32
+}
+
+/// The rotation whose angle is nearest `angle` (radians, any turn).
+pub fn nearest_rotation(angle: f32) -> u8 {
+    let step = 2.0 * PI / ROTATIONS as f32;
+    ((angle / step).round() as i32).rem_euclid(ROTATIONS as i32) as u8
 }
 
 /// What an action did.
@@ -231,7 +242,7 @@ impl Tabletop {
             .filter(|id| on_a.contains(id))
             .filter_map(|id| {
                 let before = heights_before.iter().find(|(i, _)| *i == id)?.1;
-                let now = self.object_translation(id)?.z;
+                let now = self.object(id)?.pose.translation.z;
                 (now - before >= HELD_MIN_RISE).then_some((id, now))
             })
             .max_by(|p, q| p.1.total_cmp(&q.1))

@@ -238,8 +238,4 @@ impl Tabletop {
         let body = self.world.colliders[collider].parent()?;
         self.objects.iter().find(|o| o.body == body).map(|o| o.id)
     }
-
-    pub(crate) fn object_translation(&self, id: ObjectId) -> Option<Vector> {
-        self.object(id).map(|o| o.pose.translation)
-    }
 }

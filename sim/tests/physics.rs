@@ -91,7 +91,7 @@ fn a_push_moves_a_cube_along_the_push_direction() {
     for rotation in [0u8, 4, 6, 10] {
         let mut tabletop = lone(ShapeKind::Cube, 0.3);
         let before = tabletop.object(1).unwrap().pose.translation;
-        let angle = rotation as f32 * std::f32::consts::TAU / 16.0;
+        let angle = sim::rotation_angle(rotation);
         let direction = Vector::new(angle.cos(), angle.sin(), 0.0);
         let start = before - 0.05 * direction;
         let maps = observe(&tabletop);
