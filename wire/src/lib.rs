@@ -1,0 +1,25 @@
+//! pushgrasp's wire: the messages its roles exchange and the transports that carry them.
+//!
+//! Actors, the buffer, the learner and the launcher talk only through [`Topic`]s. A
+//! [`Transport`] hands out raw publishers and subscribers for a topic; [`Outbox`] and
+//! [`Inbox`] put the versioned [`Message`] encoding on top, so every role is written once and
+//! runs over either implementation: [`ChannelTransport`] (crossbeam channels between threads)
+//! or [`ShmTransport`] (iceoryx2 shared memory between processes). Every encoded message
+//! starts with the protocol version; a message of another version is refused, never guessed at.
+
+pub mod channel;
+pub mod codec;
+pub mod error;
+pub mod message;
+pub mod topic;
+pub mod transport;
+
+pub use channel::ChannelTransport;
+pub use codec::{PROTOCOL_VERSION, decode, encode_into};
+pub use error::{TransportError, WireError};
+pub use message::{
+    BatchItem, BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role,
+    SampleRequest, Status, Step, Weights,
+};
+pub use topic::{Delivery, Topic};
+pub use transport::{Inbox, Outbox, Publisher, Subscriber, Transport};

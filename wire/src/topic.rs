@@ -1,0 +1,78 @@
+//! The topics of a run and how each is delivered.
+
+/// What a topic does when a subscriber falls behind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Delivery {
+    /// Nothing is dropped: a publisher waits for room (back-pressure).
+    Lossless,
+    /// The oldest unread message is dropped for the newest (weights, progress reports:
+    /// only the latest matters).
+    Latest,
+}
+
+/// A named stream of messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Topic {
+    /// Steps and episode ends, every actor -> the buffer.
+    Steps,
+    /// Sample requests and priority updates, learner -> buffer.
+    Requests,
+    /// Batches, buffer -> learner.
+    Batches,
+    /// Weights, learner -> every actor.
+    Weights,
+    /// Orders, launcher -> every role.
+    Control,
+    /// Progress reports, every role -> launcher.
+    Status,
+}
+
+impl Topic {
+    pub const ALL: [Topic; 6] = [
+        Topic::Steps,
+        Topic::Requests,
+        Topic::Batches,
+        Topic::Weights,
+        Topic::Control,
+        Topic::Status,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Topic::Steps => "steps",
+            Topic::Requests => "requests",
+            Topic::Batches => "batches",
+            Topic::Weights => "weights",
+            Topic::Control => "control",
+            Topic::Status => "status",
+        }
+    }
+
+    pub fn delivery(self) -> Delivery {
+        match self {
+            Topic::Steps | Topic::Requests | Topic::Batches | Topic::Control => Delivery::Lossless,
+            Topic::Weights | Topic::Status => Delivery::Latest,
+        }
+    }
+
+    /// Unread messages a subscriber holds before back-pressure (lossless) or overwriting
+    /// (latest) sets in.
+    pub fn buffer(self) -> usize {
+        match self {
+            Topic::Steps => 32,
+            Topic::Requests | Topic::Control => 16,
+            Topic::Batches => 4,
+            Topic::Weights => 1,
+            Topic::Status => 256,
+        }
+    }
+
+    /// Messages kept for subscribers that join later: the newest weights, and the newest
+    /// order (an actor restarted after a stop still stops).
+    pub fn history(self) -> usize {
+        match self {
+            Topic::Weights | Topic::Control => 1,
+            _ => 0,
+        }
+    }
+}

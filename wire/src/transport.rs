@@ -1,0 +1,80 @@
+//! The transport interface, and the typed ends every role uses on top of it.
+
+use crate::codec::{decode, encode_into};
+use crate::error::TransportError;
+use crate::message::Message;
+use crate::topic::Topic;
+
+/// Hands out the two ends of a topic. Ends are made in the thread that uses them.
+pub trait Transport {
+    fn publisher(&self, topic: Topic) -> Result<Box<dyn Publisher>, TransportError>;
+    fn subscriber(&self, topic: Topic) -> Result<Box<dyn Subscriber>, TransportError>;
+}
+
+/// Sends raw messages on one topic, as its [`Delivery`](crate::Delivery) says.
+pub trait Publisher {
+    /// Sends `bytes`; on a lossless topic it waits while the subscriber's buffer is full.
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
+}
+
+/// Receives raw messages on one topic.
+pub trait Subscriber {
+    /// Hands the oldest unread message to `sink` (in place where the transport allows) and
+    /// returns true, or returns false when none is waiting.
+    fn receive(&mut self, sink: &mut dyn FnMut(&[u8])) -> Result<bool, TransportError>;
+}
+
+/// Sends [`Message`]s on a topic.
+pub struct Outbox {
+    publisher: Box<dyn Publisher>,
+    encoded: Vec<u8>,
+}
+
+impl Outbox {
+    pub fn open(transport: &dyn Transport, topic: Topic) -> Result<Self, TransportError> {
+        Ok(Self {
+            publisher: transport.publisher(topic)?,
+            encoded: Vec::new(),
+        })
+    }
+
+    pub fn send(&mut self, message: &Message) -> Result<(), TransportError> {
+        encode_into(message, &mut self.encoded);
+        self.publisher.send(&self.encoded)
+    }
+
+    /// Sends bytes as they are: what a process of another build would send.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.publisher.send(bytes)
+    }
+}
+
+/// Receives [`Message`]s on a topic, refusing any of another protocol version.
+pub struct Inbox {
+    subscriber: Box<dyn Subscriber>,
+}
+
+impl Inbox {
+    pub fn open(transport: &dyn Transport, topic: Topic) -> Result<Self, TransportError> {
+        Ok(Self {
+            subscriber: transport.subscriber(topic)?,
+        })
+    }
+
+    /// The next message, if one is waiting.
+    pub fn try_recv(&mut self) -> Result<Option<Message>, TransportError> {
+        let mut decoded = None;
+        self.subscriber
+            .receive(&mut |bytes| decoded = Some(decode(bytes)))?;
+        Ok(decoded.transpose()?)
+    }
+
+    /// Every message waiting now, oldest first; stops at the first bad one.
+    pub fn drain(&mut self) -> Result<Vec<Message>, TransportError> {
+        let mut messages = Vec::new();
+        while let Some(message) = self.try_recv()? {
+            messages.push(message);
+        }
+        Ok(messages)
+    }
+}
