@@ -274,23 +274,39 @@ impl PrioritizedReplay {
         let total = ring.tree.total();
         let len = ring.items.len() as f64;
         let stratum = total / n as f64;
-        let mut items: Vec<BatchItem<'_>> = (0..n)
-            .map(|i| {
-                let prefix = (i as f64 + rng.random::<f64>()) * stratum;
-                let slot = ring.tree.find(prefix).expect("total is positive");
+        let mut items: Vec<BatchItem<'_>> = Vec::with_capacity(n);
+        // The searches run a chunk at a time (`SumTree::find_many`), from scratch space on
+        // the stack.
+        const CHUNK: usize = 64;
+        let mut prefixes = [0.0f64; CHUNK];
+        let mut slots = [0usize; CHUNK];
+        let mut generations = [0u64; CHUNK];
+        for start in (0..n).step_by(CHUNK) {
+            let m = CHUNK.min(n - start);
+            for (k, prefix) in prefixes[..m].iter_mut().enumerate() {
+                *prefix = ((start + k) as f64 + rng.random::<f64>()) * stratum;
+            }
+            let found = ring.tree.find_many(&prefixes[..m], &mut slots[..m]);
+            assert!(found, "total is positive");
+            // A loop of bare loads, so that the scattered reads overlap.
+            for (generation, &slot) in generations.iter_mut().zip(&slots[..m]) {
+                *generation = ring.generations[slot];
+            }
+            let found = slots[..m].iter().zip(&generations);
+            items.extend(found.map(|(&slot, &generation)| {
                 let probability = ring.tree.get(slot) / total;
                 BatchItem {
                     key: Key {
                         primitive,
                         slot: slot as u32,
-                        generation: ring.generations[slot],
+                        generation,
                     },
                     transition: &ring.items[slot],
                     probability,
                     weight: (len * probability).powf(-beta) as f32,
                 }
-            })
-            .collect();
+            }));
+        }
         let max_weight = items.iter().map(|i| i.weight).fold(0.0f32, f32::max);
         for item in &mut items {
             item.weight /= max_weight;

@@ -4,17 +4,69 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Weights over `capacity` slots, stored as a complete binary tree whose inner nodes hold the
-/// sums of their children. Serialised as its leaves only; the inner sums are rebuilt on load,
-/// so a snapshot can never hold sums that disagree with its leaves.
+/// Children per inner node: eight `f64`s fill one 64-byte cache line.
+const FANOUT: usize = 8;
+
+/// Eight weights, or eight subtree sums, aligned to a cache line so that one step of a search
+/// or an update touches one line.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C, align(64))]
+struct Group([f64; FANOUT]);
+
+impl Group {
+    /// The sum in slot order. Every sum of the tree is computed this one way, so sums
+    /// rebuilt from the weights are bit for bit those kept by updates. (Adding pairwise
+    /// compiles to wide loads, which stall on the store of the weight just set.)
+    fn sum(&self) -> f64 {
+        self.0.iter().fold(0.0, |sum, w| sum + w)
+    }
+
+    /// The child a search with `prefix` still to cover goes to, and `prefix` less the weight
+    /// before that child: the first child where the running sum exceeds `prefix`, or, for a
+    /// `prefix` at or past the group's sum, the last child of positive weight. Either has a
+    /// positive weight when any child has, and `prefix` stays at or above 0. Computed
+    /// without a branch: the answer is unpredictable, and a missed branch would throw away
+    /// the loads of the searches running beside this one (`SumTree::find_many`).
+    #[inline(always)]
+    fn choose(&self, prefix: &mut f64) -> usize {
+        let mut before = [0.0f64; FANOUT + 1];
+        let mut running = 0.0;
+        let mut covered = 0;
+        let mut positive = 0u32;
+        for (j, &w) in self.0.iter().enumerate() {
+            running += w;
+            before[j + 1] = running;
+            covered += usize::from(running <= *prefix);
+            positive |= u32::from(w > 0.0) << j;
+        }
+        let last_positive = (positive | 1).ilog2() as usize;
+        let child = if covered == FANOUT {
+            last_positive
+        } else {
+            covered
+        };
+        *prefix -= before[child];
+        child
+    }
+}
+
+/// Weights over `capacity` slots in an eight-way tree whose inner entries hold the sums of
+/// their children. Serialised as its weights only; the sums are rebuilt on load, so a
+/// snapshot can never hold sums that disagree with its weights.
+///
+/// Eight children to a cache line make a search or an update touch a line per level of
+/// eight, not per level of two: a 2^21-slot tree has 7 levels, not 21, and its upper levels
+/// (the few that are not the weights themselves) take an eighth of the weights' memory.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(into = "Vec<f64>", try_from = "Vec<f64>")]
 pub struct SumTree {
     capacity: usize,
-    /// Leaves padded to a power of two; node `i` has children `2i` and `2i + 1`, the root is
-    /// node 1 and leaf `j` is node `leaves + j`. Padding leaves stay 0.
-    leaves: usize,
-    nodes: Vec<f64>,
+    /// `levels[0]` holds the weights, slot `i` at `[i / 8].0[i % 8]`. Entry `g` of level
+    /// `k + 1` is the sum of group `g` of level `k`. The last level is a single group.
+    /// Padding entries stay 0.
+    levels: Vec<Vec<Group>>,
+    /// The sum of the last level's group.
+    total: f64,
 }
 
 impl SumTree {
@@ -24,11 +76,20 @@ impl SumTree {
     /// If `capacity` is 0.
     pub fn new(capacity: usize) -> Self {
         assert!(capacity > 0, "a sum tree needs at least one slot");
-        let leaves = capacity.next_power_of_two();
+        let mut levels = Vec::new();
+        let mut entries = capacity;
+        loop {
+            let groups = entries.div_ceil(FANOUT);
+            levels.push(vec![Group::default(); groups]);
+            if groups == 1 {
+                break;
+            }
+            entries = groups;
+        }
         Self {
             capacity,
-            leaves,
-            nodes: vec![0.0; 2 * leaves],
+            levels,
+            total: 0.0,
         }
     }
 
@@ -39,7 +100,7 @@ impl SumTree {
 
     /// The sum of all weights.
     pub fn total(&self) -> f64 {
-        self.nodes[1]
+        self.total
     }
 
     /// The weight of `slot`.
@@ -48,7 +109,7 @@ impl SumTree {
     /// If `slot >= capacity`.
     pub fn get(&self, slot: usize) -> f64 {
         assert!(slot < self.capacity, "slot {slot} out of {}", self.capacity);
-        self.nodes[self.leaves + slot]
+        self.levels[0][slot / FANOUT].0[slot % FANOUT]
     }
 
     /// Sets the weight of `slot` and the sums above it.
@@ -62,14 +123,16 @@ impl SumTree {
             weight.is_finite() && weight >= 0.0,
             "sum tree weight {weight} is not a finite non-negative number"
         );
-        let mut node = self.leaves + slot;
-        self.nodes[node] = weight;
-        // Recompute each parent from its children rather than adding a delta, so rounding
+        // Recompute each sum from its children rather than adding a delta, so rounding
         // errors never accumulate over millions of updates.
-        while node > 1 {
-            node /= 2;
-            self.nodes[node] = self.nodes[2 * node] + self.nodes[2 * node + 1];
+        let (mut entry, mut value) = (slot, weight);
+        for level in &mut self.levels {
+            let group = &mut level[entry / FANOUT];
+            group.0[entry % FANOUT] = value;
+            value = group.sum();
+            entry /= FANOUT;
         }
+        self.total = value;
     }
 
     /// The slot where the running sum of weights (in slot order) first exceeds `prefix`:
@@ -77,30 +140,62 @@ impl SumTree {
     /// (rounding in the caller) gives the last slot of non-zero weight, so the answer always
     /// has a positive weight. Returns `None` when the total is 0.
     pub fn find(&self, prefix: f64) -> Option<usize> {
-        if self.total() <= 0.0 {
+        if self.total <= 0.0 {
             return None;
         }
         let mut prefix = prefix.max(0.0);
-        let mut node = 1;
-        while node < self.leaves {
-            let left = self.nodes[2 * node];
-            let right = self.nodes[2 * node + 1];
-            // Going left when the right subtree is empty keeps the search inside weight:
-            // every node visited has a positive sum.
-            if prefix < left || right <= 0.0 {
-                node *= 2;
-            } else {
-                prefix -= left;
-                node = 2 * node + 1;
+        let mut entry = 0;
+        for level in self.levels.iter().rev() {
+            entry = entry * FANOUT + level[entry].choose(&mut prefix);
+        }
+        Some(entry)
+    }
+
+    /// [`find`](Self::find) for many prefixes at once: `slots[i]` gets the slot of
+    /// `prefixes[i]`, the very slot `find` gives. Returns false, leaving `slots` as it was,
+    /// when the total is 0.
+    ///
+    /// The searches go down the tree a level at a time side by side. A large replay's tree
+    /// is bigger than the inner caches, so the lower levels are waits on memory; this way the
+    /// waits of different searches overlap instead of queueing behind each other.
+    ///
+    /// # Panics
+    /// If the two slices differ in length.
+    pub fn find_many(&self, prefixes: &[f64], slots: &mut [usize]) -> bool {
+        assert_eq!(prefixes.len(), slots.len(), "one slot per prefix");
+        if self.total <= 0.0 {
+            return false;
+        }
+        /// Searches in flight at once: enough to cover the memory latency, few enough that
+        /// their state stays in L1.
+        const LANES: usize = 32;
+        for (prefixes, slots) in prefixes.chunks(LANES).zip(slots.chunks_mut(LANES)) {
+            let mut rest = [0.0f64; LANES];
+            let rest = &mut rest[..prefixes.len()];
+            for (r, p) in rest.iter_mut().zip(prefixes) {
+                *r = p.max(0.0);
+            }
+            slots.fill(0);
+            let mut groups = [Group::default(); LANES];
+            for level in self.levels.iter().rev() {
+                // Gather first, choose after: the gathering loop is short enough for every
+                // lane's load to be in flight at once.
+                for (group, entry) in groups.iter_mut().zip(slots.iter()) {
+                    *group = level[*entry];
+                }
+                for ((entry, prefix), group) in slots.iter_mut().zip(rest.iter_mut()).zip(&groups) {
+                    *entry = *entry * FANOUT + group.choose(prefix);
+                }
             }
         }
-        Some(node - self.leaves)
+        true
     }
 }
 
 impl From<SumTree> for Vec<f64> {
     fn from(tree: SumTree) -> Self {
-        tree.nodes[tree.leaves..tree.leaves + tree.capacity].to_vec()
+        let weights = tree.levels[0].iter().flat_map(|group| group.0);
+        weights.take(tree.capacity).collect()
     }
 }
 
@@ -117,10 +212,16 @@ impl TryFrom<Vec<f64>> for SumTree {
             ));
         }
         let mut tree = SumTree::new(weights.len());
-        tree.nodes[tree.leaves..tree.leaves + weights.len()].copy_from_slice(&weights);
-        for node in (1..tree.leaves).rev() {
-            tree.nodes[node] = tree.nodes[2 * node] + tree.nodes[2 * node + 1];
+        for (slot, &w) in weights.iter().enumerate() {
+            tree.levels[0][slot / FANOUT].0[slot % FANOUT] = w;
         }
+        for k in 1..tree.levels.len() {
+            let (below, above) = tree.levels.split_at_mut(k);
+            for (g, group) in below[k - 1].iter().enumerate() {
+                above[0][g / FANOUT].0[g % FANOUT] = group.sum();
+            }
+        }
+        tree.total = tree.levels.last().expect("a tree has a level")[0].sum();
         Ok(tree)
     }
 }
@@ -145,7 +246,18 @@ mod tests {
 
     #[test]
     fn agrees_with_a_naive_implementation_under_random_operations() {
-        for (seed, capacity) in [(1u64, 1usize), (2, 2), (3, 5), (4, 64), (5, 100)] {
+        let cases = [
+            (1u64, 1usize),
+            (2, 2),
+            (3, 5),
+            (4, 64),
+            (5, 100),
+            (6, 8),
+            (7, 9),
+            (8, 513),
+            (9, 4100),
+        ];
+        for (seed, capacity) in cases {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let mut tree = SumTree::new(capacity);
             let mut naive = vec![0.0f64; capacity];
@@ -197,6 +309,57 @@ mod tests {
         assert_eq!(tree.find(3.0), Some(3));
         assert_eq!(tree.find(1e9), Some(3));
         assert_eq!(tree.find(-1.0), Some(1));
+    }
+
+    #[test]
+    fn many_searches_at_once_give_what_one_at_a_time_gives() {
+        for (seed, capacity) in [(11u64, 1usize), (12, 7), (13, 8), (14, 65), (15, 5000)] {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let mut tree = SumTree::new(capacity);
+            let mut slots = vec![usize::MAX; 100];
+            assert!(!tree.find_many(&[0.5; 100], &mut slots));
+            assert!(slots.iter().all(|&s| s == usize::MAX), "left as it was");
+            for _ in 0..capacity.min(500) {
+                let slot = rng.random_range(0..capacity);
+                let weight = if rng.random::<f64>() < 0.3 {
+                    0.0
+                } else {
+                    rng.random_range(0.0..5.0)
+                };
+                tree.set(slot, weight);
+            }
+            if tree.total() == 0.0 {
+                tree.set(capacity - 1, 1.0);
+            }
+            // Inside the total, at and past it, below 0; batches longer than the lanes and
+            // of odd lengths.
+            for n in [1, 31, 32, 33, 100] {
+                let prefixes: Vec<f64> = (0..n)
+                    .map(|_| rng.random_range(-0.1..1.1) * tree.total())
+                    .collect();
+                let mut slots = vec![0; n];
+                assert!(tree.find_many(&prefixes, &mut slots));
+                for (prefix, slot) in prefixes.iter().zip(&slots) {
+                    assert_eq!(Some(*slot), tree.find(*prefix), "prefix {prefix}");
+                    assert!(tree.get(*slot) > 0.0);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn sums_after_many_updates_are_those_rebuilt_from_the_weights() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        let mut tree = SumTree::new(777);
+        for _ in 0..20_000 {
+            tree.set(rng.random_range(0..777), rng.random_range(0.0..3.0));
+        }
+        let weights: Vec<f64> = tree.clone().into();
+        assert_eq!(weights.len(), 777);
+        let rebuilt = SumTree::try_from(weights.clone()).unwrap();
+        assert_eq!(rebuilt, tree);
+        let naive: f64 = weights.iter().sum();
+        assert!((tree.total() - naive).abs() <= 1e-9 * naive);
     }
 
     #[test]
