@@ -30,6 +30,9 @@ pub enum TransportError {
     },
     #[error("topic {topic}: {why}")]
     Backend { topic: &'static str, why: String },
+    /// The transport itself cannot be set up (a bad run id, no shared memory).
+    #[error("transport: {why}")]
+    Setup { why: String },
     #[error(transparent)]
     Wire(#[from] WireError),
 }

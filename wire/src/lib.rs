@@ -11,6 +11,7 @@ pub mod channel;
 pub mod codec;
 pub mod error;
 pub mod message;
+pub mod shm;
 pub mod topic;
 pub mod transport;
 
@@ -21,5 +22,6 @@ pub use message::{
     BatchItem, BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role,
     SampleRequest, Status, Step, Weights,
 };
+pub use shm::{ShmTransport, StaleCleanup};
 pub use topic::{Delivery, Topic};
 pub use transport::{Inbox, Outbox, Publisher, Subscriber, Transport};

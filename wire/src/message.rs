@@ -106,11 +106,10 @@ pub struct PriorityUpdate {
 /// The nets' parameters (learner -> actors); late joiners get the latest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Weights {
-    /// Increases with every broadcast of a run (it continues across `--resume`).
+    /// The learner updates these weights come from (0: the initial weights); it continues
+    /// across `--resume`, so it only grows within a run.
     pub version: u64,
     pub stage: u8,
-    /// Learner updates the weights come from.
-    pub updates: u64,
     /// Both nets, as `qnet::QNets::to_bytes` writes them.
     pub bytes: Vec<u8>,
 }

@@ -15,6 +15,14 @@ pub trait Transport {
 pub trait Publisher {
     /// Sends `bytes`; on a lossless topic it waits while the subscriber's buffer is full.
     fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
+
+    /// Connects subscribers that joined since the last send, handing them the topic's
+    /// history. Shared memory needs it: a publisher of a topic with history (weights,
+    /// orders) that may go a while without sending calls it now and then, or late
+    /// subscribers wait for its next message. Channels deliver history on subscription.
+    fn refresh(&mut self) -> Result<(), TransportError> {
+        Ok(())
+    }
 }
 
 /// Receives raw messages on one topic.
@@ -41,6 +49,11 @@ impl Outbox {
     pub fn send(&mut self, message: &Message) -> Result<(), TransportError> {
         encode_into(message, &mut self.encoded);
         self.publisher.send(&self.encoded)
+    }
+
+    /// See [`Publisher::refresh`].
+    pub fn refresh(&mut self) -> Result<(), TransportError> {
+        self.publisher.refresh()
     }
 
     /// Sends bytes as they are: what a process of another build would send.

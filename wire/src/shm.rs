@@ -1,0 +1,354 @@
+//! iceoryx2 shared memory between the processes of one machine: the transport `train` uses.
+//!
+//! Each process owns one iceoryx2 node; each topic is a publish-subscribe service of byte
+//! slices named `pushgrasp/<run id>/<topic>`, so two runs on one machine never meet. Every
+//! process opens a topic with the same settings, whoever comes first creates it. A
+//! subscriber reads a message in place, in the publisher's shared memory.
+//!
+//! What iceoryx2 does that a caller must know:
+//! - A subscriber connects to a new publisher when it next looks for messages. Until then
+//!   the publisher's messages wait in a buffer of the topic's size; when it is full a
+//!   lossless publisher here waits for the subscriber (iceoryx2 itself would drop them).
+//! - A lossless publisher whose subscriber's buffer is full waits (spinning, then sleeping)
+//!   until the subscriber reads, drops its end, or its process is found dead and cleaned up
+//!   (every new node cleans up dead ones, as does [`ShmTransport::remove_stale`]). A message
+//!   sent while no subscriber exists is dropped, as over channels.
+//! - What a publisher sent stays readable after it exits or is killed, once the subscriber
+//!   has connected to it. A publisher that exits before the subscriber first looked takes its
+//!   unread messages with it (a killed one, when it is cleaned up): a process makes sure its
+//!   last messages were read before it exits.
+//! - History (the newest weights, the newest order) reaches a subscriber that joins later
+//!   only when the publisher next sends or calls [`Publisher::refresh`].
+
+use std::time::Duration;
+
+use iceoryx2::node::NodeView;
+use iceoryx2::port::publisher::Publisher as IoxPublisher;
+use iceoryx2::port::subscriber::Subscriber as IoxSubscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::PortFactory as _;
+use iceoryx2::prelude::{
+    AllocationStrategy, BackpressureStrategy, CallbackProgression, Config, Node, NodeBuilder,
+    NodeName, NodeState, ServiceName, SignalHandlingMode, ipc,
+};
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+
+use crate::error::TransportError;
+use crate::topic::{Delivery, Topic};
+use crate::transport::{Publisher, Subscriber, Transport};
+
+/// Every name this transport gives starts with this.
+const PREFIX: &str = "pushgrasp";
+
+/// Longest run id accepted (iceoryx2 limits node names to 128 bytes).
+const MAX_RUN_ID: usize = 64;
+
+/// Publishers a topic admits at once: actors restart, and a dead one's port stays until it
+/// is cleaned up.
+const MAX_PUBLISHERS: usize = 64;
+
+/// Processes that may open a topic at once.
+const MAX_NODES: usize = 128;
+
+/// The slice a publisher reserves first; larger messages grow it in powers of two.
+const INITIAL_SLICE: usize = 4096;
+
+/// How long a cleanup waits for another process cleaning up the same dead node.
+const CLEANUP_WAIT: Duration = Duration::from_millis(500);
+
+/// One run's topics in this process, over iceoryx2 shared memory. One per process: create it
+/// once and make every publisher and subscriber from it (it may be shared between threads;
+/// each end stays in the thread that made it).
+pub struct ShmTransport {
+    node: Node<ipc::Service>,
+    run_id: String,
+}
+
+/// What [`ShmTransport::remove_stale`] found of a run.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct StaleCleanup {
+    /// Dead processes of the run whose shared memory was removed.
+    pub removed: usize,
+    /// Dead processes whose resources could not be removed (another process is removing
+    /// them, or permissions).
+    pub failed: usize,
+    /// Process ids of the run's live processes: a run with this id is still going.
+    pub alive: Vec<i32>,
+}
+
+impl ShmTransport {
+    /// Joins run `run_id` as a process named `node_name` (its iceoryx2 node is named
+    /// `pushgrasp/<run id>/<node name>`). Removes what killed processes left first.
+    pub fn new(run_id: &str, node_name: &str) -> Result<Self, TransportError> {
+        check_run_id(run_id)?;
+        let name = format!("{PREFIX}/{run_id}/{node_name}");
+        let name = NodeName::new(&name).map_err(|e| TransportError::Setup {
+            why: format!("{name:?} is not a valid iceoryx2 node name ({e})"),
+        })?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            // The roles handle SIGINT and SIGTERM themselves.
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .config(&config())
+            .create::<ipc::Service>()
+            .map_err(|e| TransportError::Setup {
+                why: format!("cannot create the iceoryx2 node {name}: {e}"),
+            })?;
+        node.try_cleanup_dead_nodes();
+        Ok(Self {
+            node,
+            run_id: run_id.to_owned(),
+        })
+    }
+
+    pub fn run_id(&self) -> &str {
+        &self.run_id
+    }
+
+    /// Removes the shared memory that dead processes of run `run_id` left behind (killed
+    /// processes cannot remove their own), and says which of the run's processes are alive.
+    /// A launcher calls it before it starts or resumes a run.
+    pub fn remove_stale(run_id: &str) -> Result<StaleCleanup, TransportError> {
+        check_run_id(run_id)?;
+        let prefix = format!("{PREFIX}/{run_id}/");
+        let of_run = |name: Option<&str>| name.is_some_and(|n| n.starts_with(&prefix));
+        let mut dead = Vec::new();
+        let mut report = StaleCleanup::default();
+        Node::<ipc::Service>::list(&config(), |state| {
+            match state {
+                NodeState::Alive(view) => {
+                    if let Some(details) = view.details()
+                        && of_run(Some(details.name().as_str()))
+                    {
+                        report.alive.push(details.process_id().value());
+                    }
+                }
+                NodeState::Dead(view) => {
+                    if of_run(view.details().as_ref().map(|d| d.name().as_str())) {
+                        dead.push(view);
+                    }
+                }
+                NodeState::Inaccessible(_) | NodeState::Undefined(_) => {}
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| TransportError::Setup {
+            why: format!("cannot list the iceoryx2 nodes: {e}"),
+        })?;
+        for view in dead {
+            match view.blocking_remove_stale_resources(CLEANUP_WAIT) {
+                Ok(()) => report.removed += 1,
+                Err(_) => report.failed += 1,
+            }
+        }
+        Ok(report)
+    }
+
+    /// Opens (or creates) a topic's service with the settings every process uses.
+    fn open_topic(
+        &self,
+        topic: Topic,
+    ) -> Result<PortFactory<ipc::Service, [u8], ()>, TransportError> {
+        let name = service_name(&self.run_id, topic);
+        let name = ServiceName::new(&name).map_err(|e| backend(topic, "the service name", e))?;
+        let lossless = topic.delivery() == Delivery::Lossless;
+        self.node
+            .service_builder(&name)
+            .publish_subscribe::<[u8]>()
+            .max_publishers(MAX_PUBLISHERS)
+            .max_subscribers(max_subscribers(topic))
+            .max_nodes(MAX_NODES)
+            .subscriber_max_buffer_size(topic.buffer())
+            // A subscriber holds one message at a time (while its sink runs).
+            .subscriber_max_borrowed_samples(1)
+            .history_size(topic.history())
+            .enable_safe_overflow(!lossless)
+            .open_or_create()
+            .map_err(|e| TransportError::Backend {
+                topic: topic.name(),
+                why: format!(
+                    "cannot open the iceoryx2 service {name}: {e} (a process of another \
+                     pushgrasp build in this run, or an earlier run's leftovers: \
+                     remove stale resources or choose another run id)"
+                ),
+            })
+    }
+}
+
+/// Subscribers a topic admits at once. iceoryx2 sizes each publisher's shared memory for the
+/// worst case, max subscribers x (buffer + 1 held) + history + 2 messages, each rounded up to
+/// a power of two (0.5 MB steps take 1 MB: about 135 MB per actor with 4 subscribers). Only what
+/// is written takes memory, but the topics with one reader keep this small.
+fn max_subscribers(topic: Topic) -> usize {
+    match topic {
+        // Every actor, or every role, reads these.
+        Topic::Weights | Topic::Control => 64,
+        // One reader (the buffer, the learner, the launcher), and room to spare.
+        Topic::Steps | Topic::Requests | Topic::Batches | Topic::Status => 4,
+    }
+}
+
+/// iceoryx2's defaults (shared memory in /dev/shm, its files in /tmp/iceoryx2), never a
+/// configuration file found on the machine: every process of a run must agree.
+fn config() -> Config {
+    Config::default()
+}
+
+fn service_name(run_id: &str, topic: Topic) -> String {
+    format!("{PREFIX}/{run_id}/{}", topic.name())
+}
+
+fn check_run_id(run_id: &str) -> Result<(), TransportError> {
+    let allowed = |c: char| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-');
+    if run_id.is_empty() || run_id.len() > MAX_RUN_ID || !run_id.chars().all(allowed) {
+        return Err(TransportError::Setup {
+            why: format!(
+                "run id {run_id:?} must be 1 to {MAX_RUN_ID} characters of A-Z, a-z, 0-9, \
+                 '.', '_' and '-'"
+            ),
+        });
+    }
+    Ok(())
+}
+
+fn backend(topic: Topic, what: &str, e: impl std::fmt::Display) -> TransportError {
+    TransportError::Backend {
+        topic: topic.name(),
+        why: format!("iceoryx2: {what}: {e}"),
+    }
+}
+
+impl Transport for ShmTransport {
+    fn publisher(&self, topic: Topic) -> Result<Box<dyn Publisher>, TransportError> {
+        let service = self.open_topic(topic)?;
+        let backpressure = match topic.delivery() {
+            Delivery::Lossless => BackpressureStrategy::RetryUntilDelivered,
+            // Unused: the service overwrites the oldest message instead.
+            Delivery::Latest => BackpressureStrategy::DiscardData,
+        };
+        let publisher = service
+            .publisher_builder()
+            .backpressure_strategy(backpressure)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .initial_max_slice_len(INITIAL_SLICE)
+            .create()
+            .map_err(|e| backend(topic, "creating a publisher", e))?;
+        Ok(Box::new(ShmPublisher {
+            topic,
+            publisher,
+            service,
+        }))
+    }
+
+    fn subscriber(&self, topic: Topic) -> Result<Box<dyn Subscriber>, TransportError> {
+        let service = self.open_topic(topic)?;
+        let subscriber = service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| backend(topic, "creating a subscriber", e))?;
+        Ok(Box::new(ShmSubscriber {
+            topic,
+            subscriber,
+            _service: service,
+        }))
+    }
+}
+
+struct ShmPublisher {
+    topic: Topic,
+    publisher: IoxPublisher<ipc::Service, [u8], ()>,
+    service: PortFactory<ipc::Service, [u8], ()>,
+}
+
+impl ShmPublisher {
+    /// Sends once: to how many subscribers the message went.
+    fn send_once(&self, bytes: &[u8]) -> Result<usize, TransportError> {
+        let sample = self
+            .publisher
+            .loan_slice_uninit(bytes.len())
+            .map_err(|e| backend(self.topic, "loaning shared memory", e))?;
+        sample
+            .write_from_slice(bytes)
+            .send()
+            .map_err(|e| backend(self.topic, "sending", e))
+    }
+}
+
+impl Publisher for ShmPublisher {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        if self.topic.delivery() == Delivery::Latest {
+            return self.send_once(bytes).map(|_| ());
+        }
+        // iceoryx2 waits for room only in the buffers of subscribers that have connected to
+        // this publisher (they do so when they next look for messages); it drops the message
+        // for a subscriber that has not and whose buffer is full. When nobody took the
+        // message for that reason, wait and send it again: nobody has it twice.
+        let mut pause = Duration::from_micros(50);
+        loop {
+            let subscribers = self.service.dynamic_config().number_of_subscribers();
+            if self.send_once(bytes)? > 0 || subscribers == 0 {
+                return Ok(());
+            }
+            std::thread::sleep(pause);
+            pause = (pause * 2).min(Duration::from_millis(2));
+        }
+    }
+
+    fn refresh(&mut self) -> Result<(), TransportError> {
+        self.publisher
+            .update_connections()
+            .map_err(|e| backend(self.topic, "connecting to new subscribers", e))
+    }
+}
+
+struct ShmSubscriber {
+    topic: Topic,
+    subscriber: IoxSubscriber<ipc::Service, [u8], ()>,
+    _service: PortFactory<ipc::Service, [u8], ()>,
+}
+
+impl Subscriber for ShmSubscriber {
+    fn receive(&mut self, sink: &mut dyn FnMut(&[u8])) -> Result<bool, TransportError> {
+        match self
+            .subscriber
+            .receive()
+            .map_err(|e| backend(self.topic, "receiving", e))?
+        {
+            Some(sample) => {
+                sink(sample.payload());
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_ids_are_checked() {
+        for bad in ["", "a/b", "a b", "ü", &"x".repeat(MAX_RUN_ID + 1)] {
+            let err = ShmTransport::remove_stale(bad).unwrap_err();
+            assert!(err.to_string().contains("run id"), "{err}");
+        }
+        for good in ["run-1", "2026.01.02_a", &"x".repeat(MAX_RUN_ID)] {
+            check_run_id(good).unwrap();
+        }
+    }
+
+    #[test]
+    fn one_transport_serves_every_thread() {
+        fn shared<T: Send + Sync>() {}
+        shared::<ShmTransport>();
+    }
+
+    #[test]
+    fn service_names_carry_the_run() {
+        assert_eq!(service_name("r1", Topic::Steps), "pushgrasp/r1/steps");
+        for topic in Topic::ALL {
+            ServiceName::new(&service_name(&"x".repeat(MAX_RUN_ID), topic)).unwrap();
+        }
+    }
+}
