@@ -4,18 +4,25 @@ SHARED ?= ../shared
 
 .PHONY: run test bench lint check-wgpu fmt arrangements
 
-# The main job: stage-1 training (goal-conditioned grasping) in one process on the CPU,
-# about a minute; its learning curve and checkpoint land in logs/single-stage1-seed1/.
+# The main job: a scaled-down stage-1 training run (goal-conditioned grasping) on the CPU:
+# a buffer, a learner and 2 actor processes over shared memory, about a minute after the
+# build; checkpoint, snapshot and summary land in logs/<run-id>/.
 run:
-	$(CARGO) run --release -- train-single --config configs/stage1.toml
+	$(CARGO) run --release -- train --config configs/stage1.toml
 
 # Every test, built optimised (physics in an unoptimised build is too slow to test).
 test:
 	$(CARGO) test --release --workspace
 
+# The buffer's figures run cpprb beside ours when it can be installed (into target/).
+BENCH_VENV := target/bench-venv
 bench:
 	$(CARGO) run --release -- bench sim
 	$(CARGO) run --release -- bench learner
+	$(CARGO) run --release -- bench transport
+	test -x $(BENCH_VENV)/bin/python3 || { python3 -m venv $(BENCH_VENV) && $(BENCH_VENV)/bin/python3 -m pip install -q cpprb; } || echo "cpprb not installed: bench buffer runs alone"
+	$(CARGO) run --release -- bench buffer
+	$(CARGO) run --release -- bench e2e
 
 lint:
 	$(CARGO) fmt --all -- --check

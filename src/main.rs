@@ -5,6 +5,7 @@ mod bench;
 mod episode;
 mod mask_shape;
 mod pictures;
+mod run;
 mod scene;
 mod single;
 
@@ -31,6 +32,11 @@ enum Command {
     Episode(episode::EpisodeArgs),
     /// Train stage 1 (goal-conditioned grasping) in one process.
     TrainSingle(single::SingleArgs),
+    /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
+    Train(run::TrainArgs),
+    /// One role of a training run (started by `train`, not by hand).
+    #[command(hide = true)]
+    Role(run::RoleArgs),
     /// Measure the hot paths.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -41,6 +47,8 @@ fn main() -> Result<()> {
         Command::Scene(command) => scene::run(command),
         Command::Episode(args) => episode::run(&args),
         Command::TrainSingle(args) => single::run(&args),
+        Command::Train(args) => run::train(&args),
+        Command::Role(args) => run::role_process(&args),
         Command::Bench(command) => bench::run(command),
     }
 }

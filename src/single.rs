@@ -29,7 +29,7 @@ const WINDOW: usize = 30;
 #[derive(Args)]
 pub struct SingleArgs {
     /// The training config (TOML).
-    #[arg(long, default_value = "configs/stage1.toml")]
+    #[arg(long, default_value = "configs/single-stage1.toml")]
     config: PathBuf,
     /// Override the number of episodes.
     #[arg(long)]

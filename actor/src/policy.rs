@@ -106,12 +106,26 @@ pub struct Decision {
     /// The highest grasp Q over all rotations inside the grasp region (the goal mask when
     /// the goal is visible): the discriminator's score, and the "before" of a push reward.
     pub goal_grasp_q: f32,
+    /// The highest push Q over the valid push starts and all rotations, when push maps were
+    /// given.
+    pub best_push_q: Option<f32>,
     /// Whether the pixel and rotation were drawn at random rather than the argmax.
     pub explored: bool,
     /// Why this primitive.
     pub reason: Reason,
     /// Whether the goal was seen from above; when not, the grasp region was every object.
     pub goal_visible: bool,
+}
+
+impl Decision {
+    /// What the state this decision was made in is worth to the step before it: the goal's
+    /// grasp Q when a grasp comes next, the best push Q when a push does.
+    pub fn state_value(&self) -> f32 {
+        match self.action.primitive {
+            Primitive::Grasp => self.goal_grasp_q,
+            Primitive::Push => self.best_push_q.unwrap_or(self.goal_grasp_q),
+        }
+    }
 }
 
 /// Where a grasp may go and where the goal's grasp Q is read: the goal mask; if the goal is
@@ -186,12 +200,19 @@ pub fn choose(
         Reason::BelowThreshold
     };
 
-    let (primitive, maps, allowed, best) = match input.push {
-        Some(push) if reason == Reason::BelowThreshold => {
+    let best_push = match input.push {
+        Some(push) => {
             let starts = valid_push_starts(obs);
             let best = push
                 .best_where(&starts)
                 .ok_or(ActorError::NoQValue(Primitive::Push))?;
+            Some((push, starts, best))
+        }
+        None => None,
+    };
+    let best_push_q = best_push.as_ref().map(|(_, _, best)| best.0);
+    let (primitive, maps, allowed, best) = match best_push {
+        Some((push, starts, best)) if reason == Reason::BelowThreshold => {
             (Primitive::Push, push, starts, best)
         }
         _ => (Primitive::Grasp, input.grasp, region, best_grasp),
@@ -218,6 +239,7 @@ pub fn choose(
         },
         predicted_q: maps.get(rotation, row, col),
         goal_grasp_q,
+        best_push_q,
         explored,
         reason,
         goal_visible: input.goal != 0 && obs.ids.contains(&input.goal),

@@ -13,6 +13,10 @@ use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig
 
 use crate::mask_shape::MaskShape;
 
+mod e2e;
+mod replay;
+mod transport;
+
 #[derive(Subcommand)]
 pub enum BenchCommand {
     /// The simulator: scene settling, heightmaps, primitives, grasp and push quality.
@@ -20,6 +24,15 @@ pub enum BenchCommand {
     /// The Q-networks: inference on all rotations, training steps, FLOP rates beside the
     /// backend's matmul peak.
     Learner(LearnerBenchArgs),
+    /// The prioritised replay: inserts and learner steps (sample with importance-sampling
+    /// weights, update priorities) at 2^17 and 2^21 slots, beside cpprb when Python has it.
+    Buffer(replay::BufferBenchArgs),
+    /// The whole system: actions/s of real training runs with 1, 2 and 4 actor processes,
+    /// and the learner's updates/s.
+    E2e(e2e::E2eBenchArgs),
+    /// The transport: 0.5 MB steps from 1, 2 and 4 processes to one subscriber through
+    /// iceoryx2 shared memory, beside Unix sockets and memcpy; iceoryx2's latency.
+    Transport(transport::TransportBenchArgs),
 }
 
 #[derive(Args)]
@@ -71,6 +84,9 @@ pub fn run(command: BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Sim(args) => bench_sim(&args),
         BenchCommand::Learner(args) => bench_learner(&args),
+        BenchCommand::Buffer(args) => replay::bench_buffer(&args),
+        BenchCommand::E2e(args) => e2e::bench_e2e(&args),
+        BenchCommand::Transport(args) => transport::bench_transport(&args),
     }
 }
 

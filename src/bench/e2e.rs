@@ -1,0 +1,75 @@
+//! `pushgrasp bench e2e`: the whole system's throughput. Real `train` runs (processes over
+//! shared memory) with 1, 2 and 4 actors; actions per second summed over the actors (each
+//! actor's actions over its own acting time, so process start-up is left out) and the
+//! learner's updates per second, read from the runs' reports.
+
+use std::path::Path;
+use std::process::Command;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use serde_json::{Map, Value};
+
+use super::print_figures;
+
+#[derive(Args)]
+pub struct E2eBenchArgs {
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// The run config.
+    #[arg(long, default_value = "configs/stage1.toml")]
+    config: String,
+    /// Episodes per run.
+    #[arg(long, default_value_t = 40)]
+    episodes: u64,
+}
+
+pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
+    let logs = tempfile::tempdir()?;
+    let mut figures = Map::new();
+    figures.insert("episodes_per_run".into(), args.episodes.into());
+    for actors in [1u32, 2, 4] {
+        let run_id = format!("bench-e2e-{actors}-{}", std::process::id());
+        let output = Command::new(std::env::current_exe()?)
+            .args(["train", "--config", &args.config])
+            .args(["--actors", &actors.to_string()])
+            .args(["--episodes", &args.episodes.to_string()])
+            .args(["--run-id", &run_id])
+            .arg("--logs")
+            .arg(logs.path())
+            .output()
+            .context("running train")?;
+        if !output.status.success() {
+            bail!(
+                "train with {actors} actors failed:\n{}",
+                String::from_utf8_lossy(&output.stderr)
+            );
+        }
+        let summary = read(&logs.path().join(&run_id).join("summary.json"))?;
+        let actions_per_s: f64 = summary["actors_reports"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(|r| r["actions"].as_f64().unwrap_or(0.0) / r["acting_s"].as_f64().unwrap_or(1.0))
+            .sum();
+        let learner = &summary["learner"];
+        let updates_per_s = learner["session_updates"].as_f64().unwrap_or(0.0)
+            / learner["training_s"].as_f64().unwrap_or(1.0).max(1e-9);
+        figures.insert(format!("actions_per_s_{actors}"), round(actions_per_s));
+        figures.insert(
+            format!("learner_updates_per_s_{actors}"),
+            round(updates_per_s),
+        );
+    }
+    print_figures(&Value::Object(figures), args.json)
+}
+
+fn round(x: f64) -> Value {
+    ((x * 100.0).round() / 100.0).into()
+}
+
+fn read(path: &Path) -> Result<Value> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(serde_json::from_slice(&bytes)?)
+}

@@ -1,0 +1,351 @@
+//! The actor role: episodes with the newest weights it has received. Observe, Q maps, the
+//! hierarchical Q* choice under epsilon-greedy exploration, act in `sim`, reward, ship.
+//!
+//! A step is shipped once the next decision is made, because its label needs the next
+//! state's value and a push's reward needs the goal's grasp Q after it: so a step travels
+//! with everything the learner needs and its actor's initial priority. An episode ends with
+//! its grasp; its end follows that grasp's step on the same topic.
+
+use actor::{Decision, Mode, PolicyInput, grasp_reward, push_reward};
+use anyhow::{Context, Result};
+use buffer::Transition;
+use learner::label::{grasp_label, push_label};
+use qnet::{Geometry, NetInput, QNets};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sim::measure::detect_change;
+use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
+use wire::{
+    EpisodeEnd, Inbox, Message, Origin, Outbox, Role, Status, Step, Topic, Transport, Weights,
+};
+
+use super::config::RunConfig;
+use super::{Lifeline, stop_requested};
+
+/// Which actor this is: its index in the run and how many times that index was started.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ActorId {
+    pub index: u32,
+    pub incarnation: u32,
+}
+
+impl ActorId {
+    /// The seed of this actor's scenes and exploration, derived from the run seed.
+    pub fn seed(self, run_seed: u64) -> u64 {
+        run_seed
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            .wrapping_add(u64::from(self.index) << 20)
+            .wrapping_add(u64::from(self.incarnation))
+    }
+
+    /// Episode ids unique across the run: index, incarnation, then a counter.
+    fn episode(self, counter: u64) -> u64 {
+        (u64::from(self.index) << 48) | (u64::from(self.incarnation) << 32) | counter
+    }
+}
+
+/// What an actor did, written to the run directory when it stops.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ActorReport {
+    pub actor: u32,
+    pub incarnation: u32,
+    pub episodes: u64,
+    pub actions: u64,
+    /// Steps shipped to the buffer (episode ends not counted).
+    pub steps_sent: u64,
+    pub goal_grasps: u64,
+    pub weights_version: u64,
+    /// Seconds from the first weights received to the stop: the time `actions` took.
+    pub acting_s: f64,
+}
+
+/// A step waiting for the next decision.
+struct Pending {
+    transition: Transition,
+    decision: Decision,
+    /// For a push: its reward needs the goal's grasp Q after it; the change around the goal
+    /// is known at once.
+    push_changed: Option<sim::measure::ChangeReport>,
+    /// For a grasp: the episode it ends.
+    ends: Option<EpisodeEnd>,
+}
+
+struct Shipper {
+    outbox: Outbox,
+    origin: Origin,
+    gamma: f32,
+    weights_version: u64,
+    steps_sent: u64,
+}
+
+impl Shipper {
+    fn next_origin(&mut self) -> Origin {
+        let origin = self.origin;
+        self.origin.seq += 1;
+        origin
+    }
+
+    /// Completes a pending step with the next state's values and sends it (and the end of
+    /// its episode). `next`: the next decision in the same scene, `None` if the scene ended.
+    fn ship(&mut self, mut pending: Pending, next: Option<&Decision>) -> Result<()> {
+        let t = &mut pending.transition;
+        let (label, next_value) = match t.action.primitive {
+            Primitive::Grasp => {
+                let next_value = next.map(|d| d.goal_grasp_q);
+                let succeeded = t.goal_grasped();
+                (
+                    grasp_label(t.reward, succeeded, next_value, self.gamma),
+                    next_value,
+                )
+            }
+            Primitive::Push => {
+                let change = pending
+                    .push_changed
+                    .as_ref()
+                    .expect("pushes carry a change");
+                t.reward = match next {
+                    Some(after) => {
+                        push_reward(pending.decision.goal_grasp_q, after.goal_grasp_q, change)
+                    }
+                    // Not reached (episodes end with a grasp); without an after, only the
+                    // change counts.
+                    None => push_reward(0.0, 0.0, change),
+                };
+                let next_value = next.map(|d| d.state_value());
+                (push_label(t.reward, next_value, self.gamma), next_value)
+            }
+        };
+        t.next_value = next_value;
+        let step = Step {
+            origin: self.next_origin(),
+            priority: f64::from((label - pending.decision.predicted_q).abs()),
+            predicted_q: pending.decision.predicted_q,
+            explored: pending.decision.explored,
+            weights_version: self.weights_version,
+            transition: pending.transition,
+        };
+        self.outbox.send(&Message::Step(step))?;
+        self.steps_sent += 1;
+        if let Some(mut end) = pending.ends {
+            end.origin = self.next_origin();
+            self.outbox.send(&Message::EpisodeEnd(end))?;
+        }
+        Ok(())
+    }
+}
+
+/// The actor's nets and where new weights come from.
+struct Policy {
+    nets: QNets,
+    geometry: Geometry,
+    weights: Inbox,
+    version: u64,
+}
+
+impl Policy {
+    /// Takes the newest weights waiting, if any; with `wait`, blocks until some arrived.
+    fn refresh(&mut self, wait: bool, lifeline: &Lifeline, control: &mut Inbox) -> Result<bool> {
+        loop {
+            let mut newest: Option<Weights> = None;
+            for message in self.weights.drain()? {
+                if let Message::Weights(w) = message {
+                    newest = Some(w);
+                }
+            }
+            if let Some(w) = newest {
+                self.nets = self
+                    .nets
+                    .clone()
+                    .load_bytes(&w.bytes)
+                    .context("loading the learner's weights")?;
+                self.version = w.version;
+                return Ok(true);
+            }
+            if !wait {
+                return Ok(false);
+            }
+            if lifeline.lost() || stop_requested(control, Role::Actor)? {
+                return Ok(false);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    }
+
+    fn decide(
+        &self,
+        config: &RunConfig,
+        obs: &Heightmaps,
+        goal: ObjectId,
+        pushes_so_far: usize,
+        epsilon: f32,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<Decision> {
+        let input = NetInput::encode(obs, goal);
+        let grasp = self
+            .nets
+            .all_rotations(Primitive::Grasp, &input, &self.geometry)?;
+        let push = match config.mode() {
+            Mode::PushGrasp => Some(self.nets.all_rotations(
+                Primitive::Push,
+                &input,
+                &self.geometry,
+            )?),
+            Mode::GraspOnly => None,
+        };
+        let policy_input = PolicyInput {
+            obs,
+            goal,
+            grasp: &grasp,
+            push: push.as_ref(),
+            pushes_so_far,
+        };
+        Ok(actor::choose(
+            &config.policy,
+            config.mode(),
+            &policy_input,
+            epsilon,
+            rng,
+        )?)
+    }
+}
+
+/// Runs episodes until the launcher says stop (or the launcher is gone); returns what it did.
+pub fn run(
+    transport: &dyn Transport,
+    config: &RunConfig,
+    id: ActorId,
+    lifeline: &Lifeline,
+) -> Result<ActorReport> {
+    let mut control = Inbox::open(transport, Topic::Control)?;
+    let mut status = Outbox::open(transport, Topic::Status)?;
+    let mut shipper = Shipper {
+        outbox: Outbox::open(transport, Topic::Steps)?,
+        origin: Origin {
+            actor: id.index,
+            incarnation: id.incarnation,
+            seq: 0,
+        },
+        gamma: config.learning.gamma,
+        weights_version: 0,
+        steps_sent: 0,
+    };
+    let device = qnet::Backend::selected().device();
+    let mut policy = Policy {
+        nets: QNets::new(&config.net, &device),
+        geometry: Geometry::new(config.side(), &config.net),
+        weights: Inbox::open(transport, Topic::Weights)?,
+        version: 0,
+    };
+    let mut report = ActorReport {
+        actor: id.index,
+        incarnation: id.incarnation,
+        ..ActorReport::default()
+    };
+    // Nothing to act with until the learner's first weights arrive.
+    if !policy.refresh(true, lifeline, &mut control)? {
+        return Ok(report);
+    }
+
+    let acting = std::time::Instant::now();
+    let seed = id.seed(config.seed);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut scene_seed = seed;
+    let (mut tabletop, _) = Tabletop::random(&config.sim, config.objects, scene_seed)?;
+    let camera = Camera::new(tabletop.grid());
+    let mut pending: Option<Pending> = None;
+    let mut failures_in_a_row = 0;
+
+    'episodes: while !lifeline.lost() && !stop_requested(&mut control, Role::Actor)? {
+        policy.refresh(false, lifeline, &mut control)?;
+        shipper.weights_version = policy.version;
+
+        // A new scene when this one is cleared or stuck; a waiting step then ends the chain.
+        let mut obs = camera.render(&tabletop);
+        if obs.visible_ids().is_empty() || failures_in_a_row >= config.max_failures_per_scene {
+            if let Some(p) = pending.take() {
+                shipper.ship(p, None)?;
+            }
+            scene_seed = scene_seed.wrapping_add(1);
+            tabletop = Tabletop::random(&config.sim, config.objects, scene_seed)?.0;
+            obs = camera.render(&tabletop);
+            failures_in_a_row = 0;
+        }
+        let visible = obs.visible_ids();
+        let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {
+            continue;
+        };
+        let episode = id.episode(report.episodes);
+        let mut step = 0u32;
+        loop {
+            let epsilon = config.policy.epsilon(report.actions);
+            let decision = policy.decide(config, &obs, goal, step as usize, epsilon, &mut rng)?;
+            if let Some(p) = pending.take() {
+                shipper.ship(p, Some(&decision))?;
+            }
+            let outcome = tabletop.act(&decision.action, &obs)?;
+            report.actions += 1;
+            let mut transition = Transition {
+                episode,
+                step,
+                goal,
+                obs,
+                action: decision.action,
+                reward: 0.0,
+                grasped: outcome.grasped,
+                next_value: None,
+            };
+            step += 1;
+            obs = camera.render(&tabletop);
+            if decision.action.primitive == Primitive::Push {
+                pending = Some(Pending {
+                    push_changed: Some(detect_change(&transition.obs, &obs, goal)),
+                    transition,
+                    decision,
+                    ends: None,
+                });
+                // Stop between actions, not only between episodes: a push chain can be long.
+                if lifeline.lost() || stop_requested(&mut control, Role::Actor)? {
+                    break 'episodes;
+                }
+                continue;
+            }
+            transition.reward = grasp_reward(outcome.grasped, goal);
+            let goal_grasped = transition.reward > 0.0;
+            failures_in_a_row = if outcome.grasped.is_some() {
+                0
+            } else {
+                failures_in_a_row + 1
+            };
+            pending = Some(Pending {
+                ends: Some(EpisodeEnd {
+                    // Stamped when sent.
+                    origin: shipper.origin,
+                    episode,
+                    goal,
+                    grasped: outcome.grasped,
+                    steps: step,
+                }),
+                transition,
+                decision,
+                push_changed: None,
+            });
+            report.episodes += 1;
+            report.goal_grasps += u64::from(goal_grasped);
+            break;
+        }
+        status.send(&Message::Status(Status::Actor {
+            actor: id.index,
+            incarnation: id.incarnation,
+            episodes: report.episodes,
+            steps_sent: shipper.steps_sent,
+            weights_version: policy.version,
+        }))?;
+    }
+    // A step still waiting for its next state is not sent: its label would be a guess. Its
+    // episode's earlier steps reach the buffer, which keeps or flushes them.
+    report.steps_sent = shipper.steps_sent;
+    report.weights_version = policy.version;
+    report.acting_s = acting.elapsed().as_secs_f64();
+    Ok(report)
+}

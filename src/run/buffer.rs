@@ -1,0 +1,349 @@
+//! The buffer role: receives every actor's steps, assembles and relabels episodes into the
+//! prioritised replay, answers the learner's sample requests and applies its priority
+//! updates, and snapshots on request and at shutdown.
+//!
+//! Every message on the steps topic carries its sender's sequence number, so the buffer
+//! proves the transport lost nothing: per actor incarnation, what arrived is exactly 0..n.
+//! When an actor index comes back as a new incarnation (its process was restarted), the
+//! episodes the old one left open are stored as they are.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use buffer::ReplayBuffer;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use wire::{
+    BatchItem, BatchMessage, Control, EpisodeEnd, Inbox, Message, Origin, Outbox, Role,
+    SampleRequest, Status, Step, Topic, Transport,
+};
+
+use super::config::RunConfig;
+use super::{Lifeline, STATUS_EVERY, SUCCESS_WINDOW, write_json};
+
+/// What one actor incarnation's stream delivered.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StreamCount {
+    pub actor: u32,
+    pub incarnation: u32,
+    /// Steps received (episode ends not counted).
+    pub steps: u64,
+    /// The next sequence number expected.
+    pub next_seq: u64,
+    /// Sequence numbers that never arrived.
+    pub missing: u64,
+}
+
+/// The buffer's counters: kept beside the replay snapshot and written as its report.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BufferReport {
+    pub steps_received: u64,
+    pub episodes: u64,
+    pub goal_grasps: u64,
+    /// Goal grasp success over the run's first and last 30 episodes.
+    pub success_first30: Option<f64>,
+    pub success_last30: Option<f64>,
+    pub streams: Vec<StreamCount>,
+    pub inserted: u64,
+    pub relabelled: u64,
+    pub sampled: u64,
+    pub priority_updates: u64,
+    pub snapshots: u64,
+}
+
+impl BufferReport {
+    pub fn lost(&self) -> u64 {
+        self.streams.iter().map(|s| s.missing).sum()
+    }
+}
+
+/// The share of goal grasps among `outcomes`.
+fn success(outcomes: &[bool]) -> Option<f64> {
+    (!outcomes.is_empty())
+        .then(|| outcomes.iter().filter(|&&s| s).count() as f64 / outcomes.len() as f64)
+}
+
+/// Where the buffer keeps its state in a run directory.
+pub struct BufferFiles {
+    pub snapshot: PathBuf,
+    pub counters: PathBuf,
+    /// Per episode: whether its goal was grasped, and the success over the last 30.
+    pub curve: PathBuf,
+}
+
+impl BufferFiles {
+    pub fn in_dir(dir: &Path) -> Self {
+        Self {
+            snapshot: dir.join("buffer.snapshot"),
+            counters: dir.join("buffer-counters.json"),
+            curve: dir.join("curve.csv"),
+        }
+    }
+}
+
+struct BufferRole {
+    replay: ReplayBuffer,
+    report: BufferReport,
+    /// Per (actor, incarnation): its stream position and its episodes still open.
+    streams: BTreeMap<(u32, u32), (StreamCount, BTreeSet<u64>)>,
+    requests: VecDeque<SampleRequest>,
+    rng: ChaCha8Rng,
+    /// Every episode's outcome in arrival order (true: the goal was grasped).
+    outcomes: Vec<bool>,
+}
+
+impl BufferRole {
+    /// Checks a message's place in its sender's stream; a new incarnation of an actor
+    /// flushes what its predecessors left open.
+    fn arrive(&mut self, origin: Origin) -> Result<&mut (StreamCount, BTreeSet<u64>)> {
+        let key = (origin.actor, origin.incarnation);
+        if !self.streams.contains_key(&key) {
+            let stale: Vec<(u32, u32)> = self
+                .streams
+                .keys()
+                .filter(|(a, i)| *a == origin.actor && *i < origin.incarnation)
+                .copied()
+                .collect();
+            for old in stale {
+                let open = std::mem::take(&mut self.streams.get_mut(&old).expect("listed").1);
+                for episode in open {
+                    self.replay.flush_episode(episode);
+                }
+            }
+        }
+        let (count, _) = self.streams.entry(key).or_insert_with(|| {
+            (
+                StreamCount {
+                    actor: origin.actor,
+                    incarnation: origin.incarnation,
+                    ..StreamCount::default()
+                },
+                BTreeSet::new(),
+            )
+        });
+        if origin.seq < count.next_seq {
+            bail!(
+                "actor {} (incarnation {}) sent sequence number {} twice",
+                origin.actor,
+                origin.incarnation,
+                origin.seq
+            );
+        }
+        count.missing += origin.seq - count.next_seq;
+        count.next_seq = origin.seq + 1;
+        Ok(self.streams.get_mut(&key).expect("inserted"))
+    }
+
+    fn step(&mut self, step: Step) -> Result<()> {
+        let episode = step.transition.episode;
+        let (count, open) = self.arrive(step.origin)?;
+        count.steps += 1;
+        open.insert(episode);
+        self.report.steps_received += 1;
+        self.replay
+            .add_step(step.transition, Some(step.priority))
+            .context("a step from an actor")?;
+        Ok(())
+    }
+
+    fn episode_end(&mut self, end: EpisodeEnd) -> Result<()> {
+        let (_, open) = self.arrive(end.origin)?;
+        open.remove(&end.episode);
+        if let Err(e) = self.replay.end_episode(end.episode, end.grasped) {
+            // Keep the steps; only their relabelled copies are lost.
+            eprintln!(
+                "buffer: episode {}: {e}; stored without relabelling",
+                end.episode
+            );
+            self.replay.flush_episode(end.episode);
+        }
+        self.report.episodes += 1;
+        self.report.goal_grasps += u64::from(end.goal_grasped());
+        self.outcomes.push(end.goal_grasped());
+        Ok(())
+    }
+
+    /// Answers the oldest request if the replay holds its primitive and the rate limiter
+    /// allows it.
+    fn serve(&mut self, batches: &mut Outbox) -> Result<bool> {
+        let Some(&request) = self.requests.front() else {
+            return Ok(false);
+        };
+        let size = request.size as usize;
+        if self.replay.replay().is_empty(request.primitive) || !self.replay.can_sample(size as u64)
+        {
+            return Ok(false);
+        }
+        let batch = self.replay.sample(request.primitive, size, &mut self.rng)?;
+        let items = batch
+            .items
+            .iter()
+            .map(|item| BatchItem {
+                key: item.key,
+                weight: item.weight,
+                transition: item.transition.clone(),
+            })
+            .collect();
+        self.requests.pop_front();
+        batches.send(&Message::Batch(BatchMessage {
+            request: request.id,
+            items,
+        }))?;
+        Ok(true)
+    }
+
+    fn sync_report(&mut self) {
+        let stats = self.replay.stats();
+        self.report.inserted = stats.inserted;
+        self.report.relabelled = stats.relabelled;
+        self.report.sampled = stats.sampled;
+        self.report.streams = self.streams.values().map(|(c, _)| c.clone()).collect();
+        let n = self.outcomes.len();
+        self.report.success_first30 = success(&self.outcomes[..n.min(SUCCESS_WINDOW)]);
+        self.report.success_last30 = success(&self.outcomes[n.saturating_sub(SUCCESS_WINDOW)..]);
+    }
+
+    fn status(&mut self) -> Status {
+        self.sync_report();
+        let stats = self.replay.stats();
+        Status::Buffer {
+            steps_received: self.report.steps_received,
+            episodes: self.report.episodes,
+            success_last30: self.report.success_last30,
+            inserted: stats.inserted,
+            stored: (stats.push_len + stats.grasp_len) as u64,
+            capacity: 2 * self.replay.config().capacity as u64,
+            relabelled: stats.relabelled,
+            lost: self.report.lost(),
+        }
+    }
+
+    fn save(&mut self, files: &BufferFiles) -> Result<()> {
+        self.report.snapshots += 1;
+        self.sync_report();
+        self.replay.save(&files.snapshot)?;
+        let state = SavedState {
+            report: self.report.clone(),
+            open: self
+                .streams
+                .iter()
+                .map(|(k, (_, open))| (*k, open.iter().copied().collect()))
+                .collect(),
+            outcomes: self.outcomes.clone(),
+        };
+        write_json(&files.counters, &state)?;
+        let mut curve = String::from("episode,goal_grasped,success_last30\n");
+        for (i, &grasped) in self.outcomes.iter().enumerate() {
+            let window = &self.outcomes[(i + 1).saturating_sub(SUCCESS_WINDOW)..=i];
+            let rate = success(window).expect("not empty");
+            curve.push_str(&format!("{},{},{rate:.4}\n", i + 1, u8::from(grasped)));
+        }
+        std::fs::write(&files.curve, curve)
+            .with_context(|| format!("writing {}", files.curve.display()))
+    }
+}
+
+/// The counters and open episodes, saved beside the replay snapshot.
+#[derive(Serialize, Deserialize)]
+struct SavedState {
+    report: BufferReport,
+    open: Vec<((u32, u32), Vec<u64>)>,
+    outcomes: Vec<bool>,
+}
+
+/// Serves until the launcher says stop; then takes every step still in flight, snapshots and
+/// returns its counters. With `resume`, starts from the run directory's snapshot.
+pub fn run(
+    transport: &dyn Transport,
+    config: &RunConfig,
+    dir: &Path,
+    resume: bool,
+    lifeline: &Lifeline,
+) -> Result<BufferReport> {
+    let files = BufferFiles::in_dir(dir);
+    let mut role = BufferRole {
+        replay: ReplayBuffer::new(config.buffer.clone())?,
+        report: BufferReport::default(),
+        streams: BTreeMap::new(),
+        requests: VecDeque::new(),
+        rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xb0ff),
+        outcomes: Vec::new(),
+    };
+    if resume && files.snapshot.exists() {
+        role.replay = ReplayBuffer::load(&files.snapshot)?;
+        let text = std::fs::read(&files.counters)
+            .with_context(|| format!("reading {}", files.counters.display()))?;
+        let saved: SavedState = serde_json::from_slice(&text)
+            .with_context(|| format!("reading {}", files.counters.display()))?;
+        role.report = saved.report;
+        role.outcomes = saved.outcomes;
+        let open: BTreeMap<(u32, u32), Vec<u64>> = saved.open.into_iter().collect();
+        for count in &role.report.streams {
+            let key = (count.actor, count.incarnation);
+            let episodes = open.get(&key).cloned().unwrap_or_default();
+            role.streams
+                .insert(key, (count.clone(), episodes.into_iter().collect()));
+        }
+    }
+    let mut steps = Inbox::open(transport, Topic::Steps)?;
+    let mut requests = Inbox::open(transport, Topic::Requests)?;
+    let mut control = Inbox::open(transport, Topic::Control)?;
+    let mut batches = Outbox::open(transport, Topic::Batches)?;
+    let mut status = Outbox::open(transport, Topic::Status)?;
+    // The first report says the buffer listens: the launcher starts actors only then.
+    status.send(&Message::Status(role.status()))?;
+
+    let mut actors_stopped = false;
+    let mut last_status = Instant::now();
+    loop {
+        let mut busy = false;
+        let mut stop = false;
+        for message in control.drain()? {
+            match message {
+                Message::Control(Control::Stop(Role::Actor)) => actors_stopped = true,
+                Message::Control(Control::Stop(Role::Buffer)) => stop = true,
+                Message::Control(Control::Snapshot) => role.save(&files)?,
+                _ => {}
+            }
+        }
+        // Back-pressure: steps wait in the transport while the learner lags behind, except
+        // when the actors are stopping (what they send must arrive).
+        while actors_stopped || stop || role.replay.can_insert(1) {
+            match steps.try_recv()? {
+                Some(Message::Step(step)) => role.step(step)?,
+                Some(Message::EpisodeEnd(end)) => role.episode_end(end)?,
+                Some(other) => bail!("the steps topic carried {other:?}"),
+                None => break,
+            }
+            busy = true;
+        }
+        if stop || lifeline.lost() {
+            break;
+        }
+        for message in requests.drain()? {
+            busy = true;
+            match message {
+                Message::SampleRequest(request) => role.requests.push_back(request),
+                Message::PriorityUpdate(update) => {
+                    role.replay.update_priorities(&update.updates)?;
+                    role.report.priority_updates += 1;
+                }
+                other => bail!("the requests topic carried {other:?}"),
+            }
+        }
+        busy |= role.serve(&mut batches)?;
+        if last_status.elapsed() >= STATUS_EVERY {
+            status.send(&Message::Status(role.status()))?;
+            last_status = Instant::now();
+        }
+        if !busy {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    role.save(&files)?;
+    status.send(&Message::Status(role.status()))?;
+    Ok(role.report)
+}

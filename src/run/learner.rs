@@ -1,0 +1,250 @@
+//! The learner role: asks the buffer for batches, trains the stage's net on them, sends the
+//! new priorities back, broadcasts weights every `publish_every` updates and checkpoints
+//! every `checkpoint_every` and at shutdown.
+//!
+//! Two requests are kept in flight, so the buffer samples the next batch while this one
+//! trains. The weights' version is the number of updates they come from, so it keeps
+//! growing across `--resume`.
+
+use std::collections::VecDeque;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, bail};
+use buffer::Transition;
+use learner::checkpoint::config_hash;
+use learner::label::{grasp_label, push_label};
+use learner::{Checkpoint, Manifest, Sample, Trainer};
+use qnet::{NetInput, QNets};
+use serde::{Deserialize, Serialize};
+use sim::Primitive;
+use wire::{
+    BatchMessage, Inbox, Message, Outbox, PriorityUpdate, Role, SampleRequest, Status, Topic,
+    Transport, Weights,
+};
+
+use super::config::RunConfig;
+use super::{Lifeline, STATUS_EVERY, stop_requested};
+
+const IN_FLIGHT: usize = 2;
+
+/// What the learner did, written to the run directory when it stops.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LearnerReport {
+    /// Updates in the whole run (a resumed run counts on from its checkpoint).
+    pub updates: u64,
+    pub weights_version: u64,
+    pub checkpoints: u64,
+    pub last_loss: Option<f32>,
+    /// Updates this process took and the seconds from its first batch to the stop.
+    pub session_updates: u64,
+    pub training_s: f64,
+}
+
+/// The training sample of a stored transition: its label from reward and bootstrap value.
+fn sample(transition: &Transition, weight: f32, gamma: f32) -> Sample {
+    let label = match transition.primitive() {
+        Primitive::Grasp => grasp_label(
+            transition.reward,
+            transition.goal_grasped(),
+            transition.next_value,
+            gamma,
+        ),
+        Primitive::Push => push_label(transition.reward, transition.next_value, gamma),
+    };
+    Sample {
+        input: NetInput::encode(&transition.obs, transition.goal),
+        action: transition.action,
+        label,
+        weight,
+    }
+}
+
+struct LearnerRole<'a> {
+    config: &'a RunConfig,
+    trainer: Trainer,
+    checkpoint: Checkpoint,
+    /// Updates before this process started (from the checkpoint resumed).
+    updates_before: u64,
+    report: LearnerReport,
+}
+
+impl LearnerRole<'_> {
+    fn updates(&self) -> u64 {
+        self.updates_before + self.trainer.updates()
+    }
+
+    fn publish(&mut self, weights: &mut Outbox) -> Result<()> {
+        let version = self.updates();
+        weights.send(&Message::Weights(Weights {
+            version,
+            stage: self.config.stage,
+            bytes: self.trainer.inference_nets().to_bytes()?,
+        }))?;
+        self.report.weights_version = version;
+        Ok(())
+    }
+
+    fn save_checkpoint(&mut self) -> Result<()> {
+        let manifest = Manifest {
+            stage: self.config.stage,
+            updates: self.updates(),
+            side: self.config.side(),
+            config_hash: config_hash(&self.config.net),
+        };
+        self.checkpoint
+            .save(&manifest, &self.trainer.inference_nets().to_bytes()?)?;
+        self.report.checkpoints += 1;
+        Ok(())
+    }
+
+    /// One update on a batch; returns the new priorities.
+    fn train(&mut self, batch: &BatchMessage) -> Result<PriorityUpdate> {
+        let Some(first) = batch.items.first() else {
+            bail!(
+                "the buffer answered request {} with no items",
+                batch.request
+            );
+        };
+        let net = self
+            .config
+            .trained_nets()
+            .iter()
+            .find(|n| n.primitive() == first.transition.primitive())
+            .copied();
+        let Some(net) = net else {
+            bail!(
+                "stage {} does not train on {:?} transitions",
+                self.config.stage,
+                first.transition.primitive()
+            );
+        };
+        if self.trainer.trained() != net {
+            self.trainer.set_trained(net);
+        }
+        let gamma = self.config.learning.gamma;
+        let samples: Vec<Sample> = batch
+            .items
+            .iter()
+            .map(|item| sample(&item.transition, item.weight, gamma))
+            .collect();
+        let step = self.trainer.train_step(&samples)?;
+        self.report.last_loss = Some(step.loss);
+        Ok(PriorityUpdate {
+            updates: batch
+                .items
+                .iter()
+                .zip(&step.td_errors)
+                .map(|(item, td)| (item.key, f64::from(*td)))
+                .collect(),
+        })
+    }
+}
+
+/// Trains until the launcher says stop; checkpoints and returns what it did. With `resume`,
+/// starts from the run directory's checkpoint.
+pub fn run(
+    transport: &dyn Transport,
+    config: &RunConfig,
+    dir: &Path,
+    resume: bool,
+    lifeline: &Lifeline,
+) -> Result<LearnerReport> {
+    let device = qnet::Backend::selected().device();
+    // The initial weights come from the backend's generator.
+    device.seed(config.seed);
+    let nets = QNets::new(&config.net, &device);
+    let mut role = LearnerRole {
+        config,
+        trainer: Trainer::new(
+            nets,
+            &config.net,
+            config.side(),
+            &config.learning,
+            config.trained_nets()[0],
+            &device,
+        ),
+        checkpoint: Checkpoint::at(dir.join("checkpoint")),
+        updates_before: 0,
+        report: LearnerReport::default(),
+    };
+    if resume && role.checkpoint.dir().join("manifest.toml").exists() {
+        let (manifest, bytes) = role.checkpoint.load(&config_hash(&config.net))?;
+        if manifest.stage != config.stage || manifest.side != config.side() {
+            bail!(
+                "{}: the checkpoint is of stage {} at {} px; this run is stage {} at {} px",
+                role.checkpoint.dir().display(),
+                manifest.stage,
+                manifest.side,
+                config.stage,
+                config.side()
+            );
+        }
+        role.trainer.load_weights(&bytes)?;
+        role.updates_before = manifest.updates;
+    }
+    let mut control = Inbox::open(transport, Topic::Control)?;
+    let mut batches = Inbox::open(transport, Topic::Batches)?;
+    let mut requests = Outbox::open(transport, Topic::Requests)?;
+    let mut weights = Outbox::open(transport, Topic::Weights)?;
+    let mut status = Outbox::open(transport, Topic::Status)?;
+    role.publish(&mut weights)?;
+
+    let nets = config.trained_nets();
+    let mut next_request = 0u64;
+    let mut in_flight = VecDeque::new();
+    let mut last_status = Instant::now();
+    let mut first_batch = None;
+    while !lifeline.lost() && !stop_requested(&mut control, Role::Learner)? {
+        while in_flight.len() < IN_FLIGHT {
+            let request = SampleRequest {
+                id: next_request,
+                primitive: nets[next_request as usize % nets.len()].primitive(),
+                size: config.learner.batch_size,
+            };
+            requests.send(&Message::SampleRequest(request))?;
+            in_flight.push_back(request.id);
+            next_request += 1;
+        }
+        match batches.try_recv()? {
+            Some(Message::Batch(batch)) => {
+                first_batch.get_or_insert_with(Instant::now);
+                if in_flight.pop_front() != Some(batch.request) {
+                    bail!("the buffer answered request {} out of order", batch.request);
+                }
+                let priorities = role.train(&batch)?;
+                requests.send(&Message::PriorityUpdate(priorities))?;
+                let updates = role.updates();
+                if updates.is_multiple_of(config.learner.publish_every) {
+                    role.publish(&mut weights)?;
+                }
+                if updates.is_multiple_of(config.learner.checkpoint_every) {
+                    role.save_checkpoint()?;
+                }
+            }
+            Some(other) => bail!("the batches topic carried {other:?}"),
+            None => std::thread::sleep(Duration::from_millis(1)),
+        }
+        if last_status.elapsed() >= STATUS_EVERY {
+            // Actors that joined since the last broadcast get the newest weights now, not
+            // only at the next one.
+            weights.refresh()?;
+            status.send(&Message::Status(Status::Learner {
+                updates: role.updates(),
+                weights_version: role.report.weights_version,
+                loss: role.report.last_loss,
+            }))?;
+            last_status = Instant::now();
+        }
+    }
+    role.save_checkpoint()?;
+    role.report.updates = role.updates();
+    role.report.session_updates = role.trainer.updates();
+    role.report.training_s = first_batch.map_or(0.0, |t| t.elapsed().as_secs_f64());
+    status.send(&Message::Status(Status::Learner {
+        updates: role.report.updates,
+        weights_version: role.report.weights_version,
+        loss: role.report.last_loss,
+    }))?;
+    Ok(role.report)
+}

@@ -1,0 +1,120 @@
+//! `pushgrasp train`: the distributed runtime. A launcher starts the buffer, the learner and
+//! N actors, as child processes of this binary talking over iceoryx2 shared memory (the
+//! default) or as threads talking over crossbeam channels (`--threads`); the roles' code is
+//! the same in both wirings.
+
+pub mod actor;
+pub mod buffer;
+pub mod config;
+pub mod launch;
+pub mod learner;
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use serde::Serialize;
+use wire::{Control, Inbox, Message, Role};
+
+pub use launch::{TrainArgs, train};
+
+/// Goal grasp success is reported over this many most recent attempts (the paper's metric).
+pub const SUCCESS_WINDOW: usize = 30;
+
+/// How often the buffer and the learner report progress.
+pub const STATUS_EVERY: Duration = Duration::from_millis(250);
+
+/// Whether the process that started this role is gone (then the role stops by itself: no
+/// orphan keeps running after its launcher was killed).
+pub struct Lifeline {
+    parent: Option<u32>,
+}
+
+impl Lifeline {
+    /// A role in a child process, watching its parent.
+    pub fn child() -> Self {
+        Self {
+            parent: Some(std::os::unix::process::parent_id()),
+        }
+    }
+
+    /// A role in a thread of the launcher's own process.
+    pub fn thread() -> Self {
+        Self { parent: None }
+    }
+
+    pub fn lost(&self) -> bool {
+        self.parent
+            .is_some_and(|p| std::os::unix::process::parent_id() != p)
+    }
+}
+
+/// Reads the orders waiting; true if one of them stops `role`.
+pub fn stop_requested(control: &mut Inbox, role: Role) -> Result<bool> {
+    Ok(control
+        .drain()?
+        .contains(&Message::Control(Control::Stop(role))))
+}
+
+/// Writes JSON through a temporary file, so a reader never sees half of it.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_vec_pretty(value)?)
+        .with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Which role a child process plays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RoleKind {
+    Buffer,
+    Learner,
+    Actor,
+}
+
+/// `pushgrasp role`: one role of a run, started by the launcher (not by hand).
+#[derive(Args)]
+pub struct RoleArgs {
+    #[arg(value_enum)]
+    role: RoleKind,
+    /// The run directory (holds the resolved config.toml).
+    #[arg(long)]
+    run_dir: PathBuf,
+    /// The run id: the namespace of the run's shared-memory services.
+    #[arg(long)]
+    run_id: String,
+    #[arg(long)]
+    resume: bool,
+    /// The actor's index.
+    #[arg(long, default_value_t = 0)]
+    index: u32,
+    /// How many times this actor index was started before.
+    #[arg(long, default_value_t = 0)]
+    incarnation: u32,
+}
+
+/// The entry of a child process: the role over shared memory, reports to the run directory.
+pub fn role_process(args: &RoleArgs) -> Result<()> {
+    // Ctrl-C in a terminal reaches the whole process group: the launcher alone decides, and
+    // stops the roles in order through the control topic.
+    ctrlc::set_handler(|| {}).context("installing the signal handler")?;
+    let config = config::RunConfig::load(&args.run_dir.join("config.toml"))?;
+    let spec = match args.role {
+        RoleKind::Buffer => launch::RoleSpec::Buffer,
+        RoleKind::Learner => launch::RoleSpec::Learner,
+        RoleKind::Actor => launch::RoleSpec::Actor(actor::ActorId {
+            index: args.index,
+            incarnation: args.incarnation,
+        }),
+    };
+    let transport = wire::ShmTransport::new(&args.run_id, &spec.name())?;
+    launch::run_role(
+        &transport,
+        spec,
+        &config,
+        &args.run_dir,
+        args.resume,
+        &Lifeline::child(),
+    )
+}

@@ -1,0 +1,291 @@
+//! `pushgrasp train` end to end: real buffer, learner and actor processes over iceoryx2 (or
+//! threads over channels), checked through what the run writes: its summary, the roles'
+//! reports, the checkpoint and the buffer snapshot.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+const CONFIG: &str = "configs/stage1.toml";
+
+fn command(logs: &Path, args: &[&str]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_pushgrasp"));
+    command
+        .arg("train")
+        .args(["--config", CONFIG])
+        .arg("--logs")
+        .arg(logs)
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"));
+    command
+}
+
+fn train(logs: &Path, args: &[&str]) -> Output {
+    command(logs, args).output().expect("pushgrasp runs")
+}
+
+fn train_ok(logs: &Path, args: &[&str]) -> String {
+    let output = train(logs, args);
+    assert!(
+        output.status.success(),
+        "pushgrasp train {args:?} failed ({}):\n{}\n{}",
+        output.status,
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8_lossy(&output.stdout).into_owned()
+}
+
+fn json(path: &Path) -> Value {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn summary(logs: &Path, run: &str) -> Value {
+    json(&logs.join(run).join("summary.json"))
+}
+
+fn u(value: &Value) -> u64 {
+    value
+        .as_u64()
+        .unwrap_or_else(|| panic!("{value} is not a count"))
+}
+
+/// Every step an actor reports sending was received, every stream is gap-free, and the
+/// learner trained and checkpointed; returns the steps received.
+fn assert_lossless(logs: &Path, run: &str) -> u64 {
+    let summary = summary(logs, run);
+    let buffer = &summary["buffer"];
+    let streams = buffer["streams"].as_array().expect("streams");
+    assert!(!streams.is_empty(), "no actor stream reached the buffer");
+    for stream in streams {
+        assert_eq!(u(&stream["missing"]), 0, "a gap in {stream}");
+    }
+    for report in summary["actors_reports"].as_array().expect("reports") {
+        let stream = streams
+            .iter()
+            .find(|s| s["actor"] == report["actor"] && s["incarnation"] == report["incarnation"])
+            .unwrap_or_else(|| panic!("no stream for {report}"));
+        assert_eq!(
+            stream["steps"], report["steps_sent"],
+            "sent and received differ for {report}"
+        );
+    }
+    let received: u64 = streams.iter().map(|s| u(&s["steps"])).sum();
+    assert_eq!(u(&buffer["steps_received"]), received);
+    assert!(u(&buffer["episodes"]) > 0);
+    assert!(
+        u(&summary["learner"]["updates"]) > 0,
+        "the learner never trained"
+    );
+    let dir = logs.join(run);
+    assert!(dir.join("checkpoint/manifest.toml").exists());
+    assert!(dir.join("buffer.snapshot").exists());
+    received
+}
+
+/// Waits until the run's buffer has written its counters with at least `episodes` episodes
+/// (a snapshot it takes on its own would do; polling the actors' processes is enough here).
+fn wait_for_processes(logs: &Path, run: &str, roles: usize) -> Vec<Value> {
+    let path = logs.join(run).join("processes.json");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        if let Ok(bytes) = std::fs::read(&path)
+            && let Ok(Value::Array(entries)) = serde_json::from_slice::<Value>(&bytes)
+            && entries.len() >= roles
+        {
+            return entries;
+        }
+        assert!(Instant::now() < deadline, "the run never started its roles");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn wait_exit(child: &mut Child, timeout: Duration) -> std::process::ExitStatus {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(status) = child.try_wait().expect("waitable") {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("the run did not finish within {timeout:?}");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn logs() -> tempfile::TempDir {
+    tempfile::tempdir().expect("a temporary directory")
+}
+
+fn pid_of(entries: &[Value], role: &str) -> i32 {
+    let entry = entries
+        .iter()
+        .find(|e| e["role"] == role)
+        .unwrap_or_else(|| panic!("no {role} in {entries:?}"));
+    u(&entry["pid"]) as i32
+}
+
+fn signal(pid: i32, signal: &str) {
+    let status = Command::new("kill")
+        .args([&format!("-{signal}"), &pid.to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(status.success(), "kill -{signal} {pid}");
+}
+
+#[test]
+fn two_actor_processes_over_shared_memory_lose_no_step() {
+    let logs = logs();
+    train_ok(
+        logs.path(),
+        &["--actors", "2", "--episodes", "16", "--run-id", "shm"],
+    );
+    let summary = summary(logs.path(), "shm");
+    assert_eq!(summary["actors_reports"].as_array().unwrap().len(), 2);
+    assert!(assert_lossless(logs.path(), "shm") >= 16);
+}
+
+#[test]
+fn two_actor_threads_over_channels_lose_no_step() {
+    let logs = logs();
+    train_ok(
+        logs.path(),
+        &[
+            "--threads",
+            "--actors",
+            "2",
+            "--episodes",
+            "16",
+            "--run-id",
+            "threads",
+        ],
+    );
+    assert!(assert_lossless(logs.path(), "threads") >= 16);
+}
+
+#[test]
+fn a_killed_actor_is_restarted_and_the_run_finishes() {
+    let logs = logs();
+    let mut run = command(
+        logs.path(),
+        &["--actors", "2", "--episodes", "40", "--run-id", "kill"],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("pushgrasp starts");
+    let entries = wait_for_processes(logs.path(), "kill", 4);
+    // Let it act and send a few steps first.
+    std::thread::sleep(Duration::from_secs(4));
+    signal(pid_of(&entries, "actor-0-0"), "KILL");
+    let status = wait_exit(&mut run, Duration::from_secs(300));
+    assert!(status.success(), "the run failed after the kill: {status}");
+    let summary = summary(logs.path(), "kill");
+    assert!(u(&summary["restarts"]) >= 1);
+    let reports = summary["actors_reports"].as_array().unwrap();
+    assert!(
+        reports
+            .iter()
+            .any(|r| r["actor"] == 0 && u(&r["incarnation"]) >= 1),
+        "no report of actor 0's second incarnation: {reports:?}"
+    );
+    assert_lossless(logs.path(), "kill");
+}
+
+#[test]
+fn ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_and_resume_continues() {
+    let logs = logs();
+    let mut run = command(
+        logs.path(),
+        &["--actors", "1", "--episodes", "100000", "--run-id", "int"],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("pushgrasp starts");
+    wait_for_processes(logs.path(), "int", 3);
+    std::thread::sleep(Duration::from_secs(6));
+    signal(run.id() as i32, "INT");
+    let status = wait_exit(&mut run, Duration::from_secs(180));
+    assert!(status.success(), "an interrupted run failed: {status}");
+    let first = summary(logs.path(), "int");
+    assert_eq!(first["interrupted"], true);
+    let steps = assert_lossless(logs.path(), "int");
+    let (episodes, updates) = (
+        u(&first["buffer"]["episodes"]),
+        u(&first["learner"]["updates"]),
+    );
+
+    let more = (episodes + 6).to_string();
+    train_ok(
+        logs.path(),
+        &["--resume", "--run-id", "int", "--episodes", &more],
+    );
+    let second = summary(logs.path(), "int");
+    assert_eq!(second["interrupted"], false);
+    assert!(u(&second["buffer"]["episodes"]) >= episodes + 6);
+    assert!(u(&second["buffer"]["steps_received"]) > steps);
+    assert!(
+        u(&second["learner"]["updates"]) > updates,
+        "the learner restarted its count instead of continuing"
+    );
+    assert_lossless(logs.path(), "int");
+}
+
+#[test]
+fn two_runs_at_once_stay_apart() {
+    let logs = logs();
+    let spawn = |run: &str, actors: &str| {
+        command(
+            logs.path(),
+            &["--actors", actors, "--episodes", "10", "--run-id", run],
+        )
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("pushgrasp starts")
+    };
+    let (mut a, mut b) = (spawn("a", "1"), spawn("b", "2"));
+    for run in [&mut a, &mut b] {
+        assert!(wait_exit(run, Duration::from_secs(300)).success());
+    }
+    for (run, actors) in [("a", 1), ("b", 2)] {
+        assert_lossless(logs.path(), run);
+        let streams = summary(logs.path(), run)["buffer"]["streams"].clone();
+        let seen: std::collections::BTreeSet<u64> = streams
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| u(&s["actor"]))
+            .collect();
+        assert_eq!(seen, (0..actors).collect(), "run {run} heard {streams}");
+    }
+}
+
+#[test]
+fn a_bad_config_is_refused_naming_the_file_and_field() {
+    let logs = logs();
+    let bad = logs.path().join("bad.toml");
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG))
+        .unwrap()
+        .replace("stage = 1", "stage = 4");
+    std::fs::write(&bad, text).unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .args(["train", "--config"])
+        .arg(&bad)
+        .arg("--logs")
+        .arg(logs.path())
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains("bad.toml") && stderr.contains("stage"),
+        "{stderr}"
+    );
+    let _: PathBuf = bad;
+}
