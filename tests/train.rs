@@ -73,6 +73,7 @@ fn assert_lossless(logs: &Path, run: &str) -> u64 {
             "sent and received differ for {report}"
         );
     }
+    assert!(u(&buffer["priority_updates"]) > 0, "no priority came back");
     let received: u64 = streams.iter().map(|s| u(&s["steps"])).sum();
     assert_eq!(u(&buffer["steps_received"]), received);
     assert!(u(&buffer["episodes"]) > 0);
@@ -197,7 +198,8 @@ fn a_killed_actor_is_restarted_and_the_run_finishes() {
 }
 
 #[test]
-fn ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_and_resume_continues() {
+fn a_snapshot_on_request_then_ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_and_resume_continues()
+ {
     let logs = logs();
     let mut run = command(
         logs.path(),
@@ -208,7 +210,20 @@ fn ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_and_resume_continues() {
     .spawn()
     .expect("pushgrasp starts");
     wait_for_processes(logs.path(), "int", 3);
-    std::thread::sleep(Duration::from_secs(6));
+    std::thread::sleep(Duration::from_secs(4));
+    // A snapshot on request, while the run goes on.
+    let snapshot = logs.path().join("int/buffer.snapshot");
+    signal(run.id() as i32, "USR1");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !snapshot.exists() {
+        assert!(Instant::now() < deadline, "SIGUSR1 gave no snapshot");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(
+        run.try_wait().unwrap().is_none(),
+        "the run stopped at a snapshot"
+    );
+    std::thread::sleep(Duration::from_secs(2));
     signal(run.id() as i32, "INT");
     let status = wait_exit(&mut run, Duration::from_secs(180));
     assert!(status.success(), "an interrupted run failed: {status}");

@@ -545,12 +545,16 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let reports = dir.join("reports");
     std::fs::create_dir_all(&reports)?;
 
+    use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
     let interrupted = Arc::new(AtomicBool::new(false));
-    {
-        let interrupted = interrupted.clone();
-        ctrlc::set_handler(move || interrupted.store(true, Ordering::SeqCst))
+    for signal in [SIGINT, SIGTERM] {
+        signal_hook::flag::register(signal, interrupted.clone())
             .context("installing the Ctrl-C handler")?;
     }
+    // `kill -USR1 <launcher>` asks the buffer for a snapshot.
+    let snapshot = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(SIGUSR1, snapshot.clone())
+        .context("installing the SIGUSR1 handler")?;
 
     let (wiring, transport): (Wiring, Box<dyn Transport>) = if args.threads {
         let transport = ChannelTransport::new();
@@ -592,13 +596,11 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         dir.display()
     );
     let start = Instant::now();
-    let outcome = supervise(
-        &mut launcher,
-        &mut status,
-        &mut control,
-        &interrupted,
-        start,
-    );
+    let signals = Signals {
+        interrupted: &interrupted,
+        snapshot: &snapshot,
+    };
+    let outcome = supervise(&mut launcher, &mut status, &mut control, &signals, start);
     if let Err(e) = outcome {
         // Stop what still runs, in order, so the checkpoint and snapshot are written if
         // their roles are alive; then report the failure.
@@ -653,13 +655,21 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     Ok(())
 }
 
+/// What the launcher's signal handlers raised.
+struct Signals<'a> {
+    /// Ctrl-C or SIGTERM: stop the run.
+    interrupted: &'a AtomicBool,
+    /// SIGUSR1: the buffer snapshots now.
+    snapshot: &'a AtomicBool,
+}
+
 /// Starts the roles, follows the run until its budget or an interrupt, then stops it in
 /// order. Errors when a role that cannot be restarted fails.
 fn supervise(
     launcher: &mut Launcher,
     status: &mut Inbox,
     control: &mut Outbox,
-    interrupted: &AtomicBool,
+    signals: &Signals,
     start: Instant,
 ) -> Result<()> {
     let config = launcher.config.clone();
@@ -715,7 +725,10 @@ fn supervise(
     loop {
         failures.extend(take(status, &mut progress)?);
         launcher.check(&failures)?;
-        // A restarted actor gets the newest order (there is none before the stop) at once.
+        if signals.snapshot.swap(false, Ordering::SeqCst) {
+            control.send(&Message::Control(Control::Snapshot))?;
+        }
+        // A restarted actor gets the newest order at once.
         control.refresh()?;
         if last_rate_at.elapsed() >= Duration::from_secs(2) {
             updates_per_s = (progress.updates - last_updates.min(progress.updates)) as f64
@@ -742,7 +755,7 @@ fn supervise(
         }
         let budget_spent = (config.episodes > 0 && progress.episodes >= config.episodes)
             || (config.updates > 0 && progress.updates >= config.updates);
-        if budget_spent || interrupted.load(Ordering::SeqCst) {
+        if budget_spent || signals.interrupted.load(Ordering::SeqCst) {
             break;
         }
         std::thread::sleep(Duration::from_millis(50));

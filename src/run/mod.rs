@@ -10,6 +10,8 @@ pub mod launch;
 pub mod learner;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -98,7 +100,11 @@ pub struct RoleArgs {
 pub fn role_process(args: &RoleArgs) -> Result<()> {
     // Ctrl-C in a terminal reaches the whole process group: the launcher alone decides, and
     // stops the roles in order through the control topic.
-    ctrlc::set_handler(|| {}).context("installing the signal handler")?;
+    signal_hook::flag::register(
+        signal_hook::consts::SIGINT,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .context("installing the signal handler")?;
     let config = config::RunConfig::load(&args.run_dir.join("config.toml"))?;
     let spec = match args.role {
         RoleKind::Buffer => launch::RoleSpec::Buffer,
