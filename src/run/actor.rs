@@ -278,7 +278,7 @@ pub fn run(
         let episode = id.episode(report.episodes);
         let mut step = 0u32;
         loop {
-            let epsilon = config.policy.epsilon(report.actions);
+            let epsilon = config.epsilon(id.index, report.actions);
             let decision = policy.decide(config, &obs, goal, step as usize, epsilon, &mut rng)?;
             if let Some(p) = pending.take() {
                 shipper.ship(p, Some(&decision))?;

@@ -32,6 +32,10 @@ pub struct RunConfig {
     pub sim: SimConfig,
     #[serde(default)]
     pub policy: actor::PolicyConfig,
+    /// Ape-X exploration instead of the policy's decaying schedule: actor i of N explores
+    /// with a fixed epsilon^(1 + alpha i / (N - 1)).
+    #[serde(default)]
+    pub apex_epsilon: Option<ApexEpsilon>,
     #[serde(default)]
     pub net: QNetConfig,
     #[serde(default)]
@@ -40,6 +44,26 @@ pub struct RunConfig {
     pub buffer: BufferConfig,
     #[serde(default)]
     pub learner: LearnerSchedule,
+}
+
+/// Ape-X's per-actor exploration rates (Horgan et al. 2018 use epsilon 0.4, alpha 7).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ApexEpsilon {
+    pub epsilon: f64,
+    pub alpha: f64,
+}
+
+impl ApexEpsilon {
+    /// The fixed exploration rate of actor `index` of `actors`.
+    pub fn for_actor(&self, index: u32, actors: u32) -> f32 {
+        let spread = if actors > 1 {
+            f64::from(index) / f64::from(actors - 1)
+        } else {
+            0.0
+        };
+        self.epsilon.powf(1.0 + self.alpha * spread) as f32
+    }
 }
 
 /// How the learner paces itself.
@@ -100,7 +124,20 @@ impl RunConfig {
             .validate()
             .map_err(|e| anyhow::anyhow!("buffer.{e}"))?;
         self.sim.grid().map_err(|e| anyhow::anyhow!("sim: {e}"))?;
+        if let Some(apex) = &self.apex_epsilon
+            && !((0.0..=1.0).contains(&apex.epsilon) && apex.alpha >= 0.0)
+        {
+            bail!("apex_epsilon: epsilon must be in [0, 1] and alpha >= 0");
+        }
         Ok(())
+    }
+
+    /// Actor `index`'s exploration rate after it took `actions` actions.
+    pub fn epsilon(&self, index: u32, actions: u64) -> f32 {
+        match &self.apex_epsilon {
+            Some(apex) => apex.for_actor(index, self.actors),
+            None => self.policy.epsilon(actions),
+        }
     }
 
     /// The policy's mode in this stage.
@@ -124,5 +161,31 @@ impl RunConfig {
     /// Heightmap side in pixels.
     pub fn side(&self) -> usize {
         self.sim.grid().expect("validated").side()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn apex_rates_run_from_epsilon_to_epsilon_to_the_1_plus_alpha() {
+        let apex = ApexEpsilon {
+            epsilon: 0.4,
+            alpha: 7.0,
+        };
+        assert!((apex.for_actor(0, 8) - 0.4).abs() < 1e-6);
+        assert!((apex.for_actor(7, 8) - 0.4f32.powi(8)).abs() < 1e-7);
+        assert!((apex.for_actor(0, 1) - 0.4).abs() < 1e-6);
+        let middle = apex.for_actor(3, 8);
+        assert!(middle < 0.4 && middle > 0.4f32.powi(8));
+    }
+
+    #[test]
+    fn the_shipped_stage_1_config_is_valid() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
+        let config = RunConfig::load(&path).unwrap();
+        assert_eq!(config.stage, 1);
+        assert_eq!(config.mode(), actor::Mode::GraspOnly);
     }
 }
