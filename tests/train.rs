@@ -87,8 +87,7 @@ fn assert_lossless(logs: &Path, run: &str) -> u64 {
     received
 }
 
-/// Waits until the run's buffer has written its counters with at least `episodes` episodes
-/// (a snapshot it takes on its own would do; polling the actors' processes is enough here).
+/// Waits until the run lists at least `roles` running roles in its processes file.
 fn wait_for_processes(logs: &Path, run: &str, roles: usize) -> Vec<Value> {
     let path = logs.join(run).join("processes.json");
     let deadline = Instant::now() + Duration::from_secs(120);
@@ -171,9 +170,10 @@ fn two_actor_threads_over_channels_lose_no_step() {
 #[test]
 fn a_killed_actor_is_restarted_and_the_run_finishes() {
     let logs = logs();
+    // A budget it will not reach: the run is stopped once the new actor has worked a while.
     let mut run = command(
         logs.path(),
-        &["--actors", "2", "--episodes", "40", "--run-id", "kill"],
+        &["--actors", "2", "--episodes", "100000", "--run-id", "kill"],
     )
     .stdout(Stdio::null())
     .stderr(Stdio::piped())
@@ -181,8 +181,21 @@ fn a_killed_actor_is_restarted_and_the_run_finishes() {
     .expect("pushgrasp starts");
     let entries = wait_for_processes(logs.path(), "kill", 4);
     // Let it act and send a few steps first.
-    std::thread::sleep(Duration::from_secs(4));
+    std::thread::sleep(Duration::from_secs(3));
     signal(pid_of(&entries, "actor-0-0"), "KILL");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !wait_for_processes(logs.path(), "kill", 4)
+        .iter()
+        .any(|e| e["role"] == "actor-0-1")
+    {
+        assert!(
+            Instant::now() < deadline,
+            "the killed actor was not restarted"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::thread::sleep(Duration::from_secs(3));
+    signal(run.id() as i32, "INT");
     let status = wait_exit(&mut run, Duration::from_secs(300));
     assert!(status.success(), "the run failed after the kill: {status}");
     let summary = summary(logs.path(), "kill");
