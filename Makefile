@@ -10,8 +10,12 @@ SHARED ?= ../shared
 run:
 	$(CARGO) run --release -- train --config configs/stage1.toml
 
-# Every test, built optimised (physics in an unoptimised build is too slow to test).
+# Every test, built optimised (physics in an unoptimised build is too slow to test). The
+# MCAP files are also read back by the independent Python reader, installed into target/
+# when Python is there (the tests say so and skip that check when it is not).
+MCAP_VENV := target/mcap-venv
 test:
+	test -x $(MCAP_VENV)/bin/python3 || { python3 -m venv $(MCAP_VENV) && $(MCAP_VENV)/bin/python3 -m pip install -q mcap mcap-protobuf-support; } || echo "the Python mcap reader is not installed: its cross-check is skipped"
 	$(CARGO) test --release --workspace
 
 # The buffer's figures run cpprb beside ours when it can be installed (into target/).

@@ -1,0 +1,569 @@
+//! [`RunLog`]: one process's MCAP file, written as it runs.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use mcap::records::{MessageHeader, Metadata};
+use prost::Message as _;
+use serde::Serialize;
+
+use crate::foxglove::{self, ProtoSchema};
+use crate::{Error, LOG_TOPIC, LogLevel, PROCESS_METADATA, Result, now_ns};
+
+/// How a [`RunLog`] cuts and writes its chunks.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// A chunk is closed once it holds this many bytes before compression (default 1 MiB).
+    pub chunk_size: u64,
+    /// Every message is in the file (closed into a complete chunk and handed to the operating
+    /// system) at most this long after it was logged (default 1 s). A background thread checks
+    /// ten times per interval, so this holds when the process logs nothing more; `None` leaves
+    /// it to the chunk size, [`RunLog::flush`] and the end.
+    pub flush_interval: Option<Duration>,
+    /// zstd level of the chunks; 0 is zstd's default (3).
+    pub zstd_level: u32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            chunk_size: 1 << 20,
+            flush_interval: Some(Duration::from_secs(1)),
+            zstd_level: 0,
+        }
+    }
+}
+
+type McapWriter = mcap::Writer<BufWriter<File>>;
+
+/// What a topic carries; a topic keeps the kind of its first message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Kind {
+    Json,
+    RawImage,
+    CompressedImage,
+    Log,
+}
+
+impl Kind {
+    fn describe(self) -> &'static str {
+        match self {
+            Kind::Json => "JSON messages",
+            Kind::RawImage => "foxglove.RawImage",
+            Kind::CompressedImage => "foxglove.CompressedImage",
+            Kind::Log => "foxglove.Log",
+        }
+    }
+
+    fn proto_schema(self) -> Option<ProtoSchema> {
+        match self {
+            Kind::Json => None,
+            Kind::RawImage => Some(foxglove::raw_image_schema()),
+            Kind::CompressedImage => Some(foxglove::compressed_image_schema()),
+            Kind::Log => Some(foxglove::log_schema()),
+        }
+    }
+}
+
+struct Topic {
+    channel: u16,
+    sequence: u32,
+    kind: Kind,
+}
+
+struct State {
+    /// `None` once finished.
+    writer: Option<McapWriter>,
+    /// Why the background flush failed; every later call reports it.
+    failure: Option<String>,
+    topics: HashMap<String, Topic>,
+    proto_schemas: HashMap<Kind, u16>,
+    /// When the oldest message not yet in a closed chunk was logged.
+    oldest_unflushed: Option<Instant>,
+}
+
+struct Shared {
+    path: PathBuf,
+    flush_interval: Option<Duration>,
+    state: Mutex<State>,
+}
+
+/// One process's run log: an MCAP file that stays readable if the process dies.
+///
+/// All methods take `&self` (a mutex inside), so threads of one process can share a log.
+/// Call [`RunLog::finish`] at the end to write the summary; dropping the log finishes it too,
+/// without reporting errors.
+pub struct RunLog {
+    shared: Arc<Shared>,
+    process: String,
+    flusher: Option<(mpsc::Sender<()>, JoinHandle<()>)>,
+}
+
+impl RunLog {
+    /// Creates (or truncates) the file at `path`, and its directory, with the default
+    /// [`Options`], and records the process (`name`, `pid`, `start_ns`) as metadata.
+    pub fn create(path: impl AsRef<Path>, process: &str) -> Result<RunLog> {
+        Self::create_with(path, process, Options::default())
+    }
+
+    /// [`RunLog::create`] with other [`Options`].
+    pub fn create_with(path: impl AsRef<Path>, process: &str, options: Options) -> Result<RunLog> {
+        let path = path.as_ref().to_path_buf();
+        let io_err = |source| Error::Io {
+            path: path.clone(),
+            source,
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(io_err)?;
+        }
+        let file = File::create(&path).map_err(io_err)?;
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_level(options.zstd_level)
+            // One thread per process: the roles need the cores more than the log does.
+            .compression_threads(0)
+            .chunk_size(Some(options.chunk_size))
+            // Keep the open chunk in memory and write it whole when it closes: the file then
+            // only ever ends in a partial record while that one write is under way.
+            .disable_seeking(true)
+            .library(format!(
+                "pushgrasp-mcaplog/{} {}",
+                env!("CARGO_PKG_VERSION"),
+                mcap::LIBRARY_IDENTIFIER
+            ))
+            .create(BufWriter::new(file))
+            .map_err(|source| Error::Mcap {
+                path: path.clone(),
+                source,
+            })?;
+        let shared = Arc::new(Shared {
+            path,
+            flush_interval: options.flush_interval,
+            state: Mutex::new(State {
+                writer: Some(writer),
+                failure: None,
+                topics: HashMap::new(),
+                proto_schemas: HashMap::new(),
+                oldest_unflushed: None,
+            }),
+        });
+        let flusher = options
+            .flush_interval
+            .map(|interval| spawn_flusher(Arc::clone(&shared), interval))
+            .transpose()?;
+        let log = RunLog {
+            shared,
+            process: process.to_string(),
+            flusher,
+        };
+        let process_record = BTreeMap::from([
+            ("name".to_string(), process.to_string()),
+            ("pid".to_string(), std::process::id().to_string()),
+            ("start_ns".to_string(), now_ns().to_string()),
+        ]);
+        log.metadata(PROCESS_METADATA, &process_record)?;
+        Ok(log)
+    }
+
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        &self.shared.path
+    }
+
+    /// The process name given at creation.
+    pub fn process(&self) -> &str {
+        &self.process
+    }
+
+    /// Writes a metadata record (e.g. `"config"` with the resolved configuration, flattened to
+    /// dotted keys) and flushes, so it survives a crash right after.
+    pub fn metadata(&self, name: &str, values: &BTreeMap<String, String>) -> Result<()> {
+        let mut state = self.shared.lock();
+        let record = Metadata {
+            name: name.to_string(),
+            metadata: values.clone(),
+        };
+        let path = &self.shared.path;
+        state
+            .writer(path)?
+            .write_metadata(&record)
+            .map_err(|e| mcap_err(path, e))?;
+        state.flush(path)
+    }
+
+    /// Declares a JSON topic with its own JSON schema (`schema`, a JSON Schema document, under
+    /// `schema_name`), before its first message. Topics never declared get a permissive schema
+    /// `{"type": "object"}` titled with the topic; generic readers decode either.
+    pub fn json_schema(&self, topic: &str, schema_name: &str, schema: &str) -> Result<()> {
+        let path = &self.shared.path;
+        if let Err(e) = serde_json::from_str::<serde_json::Value>(schema) {
+            return Err(topic_err(
+                path,
+                topic,
+                format!("the schema is not JSON: {e}"),
+            ));
+        }
+        let mut state = self.shared.lock();
+        if state.topics.contains_key(topic) {
+            return Err(topic_err(
+                path,
+                topic,
+                "already has a channel: declare its schema before its first message".into(),
+            ));
+        }
+        state.add_channel(path, topic, Kind::Json, Some((schema_name, schema)))?;
+        Ok(())
+    }
+
+    /// Logs `value` (which must serialize to a JSON object) on `topic`, timestamped now.
+    pub fn json<T: Serialize + ?Sized>(&self, topic: &str, value: &T) -> Result<()> {
+        self.json_at(topic, now_ns(), value)
+    }
+
+    /// Logs `value` (which must serialize to a JSON object) on `topic` at `time_ns`.
+    pub fn json_at<T: Serialize + ?Sized>(
+        &self,
+        topic: &str,
+        time_ns: u64,
+        value: &T,
+    ) -> Result<()> {
+        let path = &self.shared.path;
+        let data = serde_json::to_vec(value)
+            .map_err(|e| topic_err(path, topic, format!("cannot encode as JSON: {e}")))?;
+        if data.first() != Some(&b'{') {
+            return Err(topic_err(
+                path,
+                topic,
+                "a JSON message must be an object".into(),
+            ));
+        }
+        self.write(topic, Kind::Json, time_ns, &data)
+    }
+
+    /// Logs an uncompressed image as `foxglove.RawImage` at `timestamp_ns`. `encoding` is one
+    /// of `rgb8`, `bgr8`, `rgba8`, `bgra8`, `mono8`, `mono16` (little-endian) or `32FC1`
+    /// (little-endian f32, shown as brightness from 0 to 1); `data` holds the rows without
+    /// padding.
+    pub fn raw_image(
+        &self,
+        topic: &str,
+        timestamp_ns: u64,
+        width: u32,
+        height: u32,
+        encoding: &str,
+        data: &[u8],
+    ) -> Result<()> {
+        let path = &self.shared.path;
+        let bytes_per_pixel = match encoding {
+            "mono8" | "8UC1" => 1,
+            "mono16" | "16UC1" => 2,
+            "rgb8" | "bgr8" => 3,
+            "rgba8" | "bgra8" | "32FC1" => 4,
+            other => {
+                return Err(topic_err(
+                    path,
+                    topic,
+                    format!(
+                        "unsupported image encoding {other:?} (rgb8, bgr8, rgba8, bgra8, mono8, mono16, 32FC1)"
+                    ),
+                ));
+            }
+        };
+        let step = width as usize * bytes_per_pixel;
+        if data.len() != step * height as usize {
+            return Err(topic_err(
+                path,
+                topic,
+                format!(
+                    "a {width}x{height} {encoding} image has {} bytes, not {}",
+                    step * height as usize,
+                    data.len()
+                ),
+            ));
+        }
+        let message = foxglove::RawImage {
+            timestamp: Some(foxglove::timestamp(timestamp_ns)),
+            frame_id: String::new(),
+            width,
+            height,
+            encoding: encoding.to_string(),
+            step: step as u32,
+            data: data.to_vec(),
+        };
+        self.write(
+            topic,
+            Kind::RawImage,
+            timestamp_ns,
+            &message.encode_to_vec(),
+        )
+    }
+
+    /// Logs an encoded image (`format`: `png`, `jpeg`, `webp` or `avif`) as
+    /// `foxglove.CompressedImage` at `timestamp_ns`.
+    pub fn compressed_image(
+        &self,
+        topic: &str,
+        timestamp_ns: u64,
+        format: &str,
+        data: &[u8],
+    ) -> Result<()> {
+        let message = foxglove::CompressedImage {
+            timestamp: Some(foxglove::timestamp(timestamp_ns)),
+            frame_id: String::new(),
+            data: data.to_vec(),
+            format: format.to_string(),
+        };
+        self.write(
+            topic,
+            Kind::CompressedImage,
+            timestamp_ns,
+            &message.encode_to_vec(),
+        )
+    }
+
+    /// Logs a line as `foxglove.Log` on [`LOG_TOPIC`], named with the process, timestamped now.
+    pub fn log_line(&self, level: LogLevel, message: &str) -> Result<()> {
+        let time_ns = now_ns();
+        let line = foxglove::Log {
+            timestamp: Some(foxglove::timestamp(time_ns)),
+            level: level as i32,
+            message: message.to_string(),
+            name: self.process.clone(),
+            file: String::new(),
+            line: 0,
+        };
+        self.write(LOG_TOPIC, Kind::Log, time_ns, &line.encode_to_vec())
+    }
+
+    /// Closes the open chunk and hands everything to the operating system now.
+    pub fn flush(&self) -> Result<()> {
+        self.shared.lock().flush(&self.shared.path)
+    }
+
+    /// Flushes if the oldest unwritten message is older than the flush interval. Every write
+    /// does this, and so does the background thread; a caller never needs to.
+    pub fn flush_if_due(&self) -> Result<()> {
+        let interval = self.shared.flush_interval;
+        self.shared
+            .lock()
+            .flush_if_due(&self.shared.path, interval, Duration::ZERO)
+    }
+
+    /// Writes the last chunk and the summary (counts, indexes), and closes the file.
+    pub fn finish(mut self) -> Result<()> {
+        self.close()
+    }
+
+    fn close(&mut self) -> Result<()> {
+        if let Some((stop, thread)) = self.flusher.take() {
+            drop(stop);
+            let _ = thread.join();
+        }
+        let path = &self.shared.path;
+        let mut state = self.shared.lock();
+        state.writer(path)?;
+        let Some(mut writer) = state.writer.take() else {
+            return Ok(());
+        };
+        writer.finish().map_err(|e| mcap_err(path, e))?;
+        writer.into_inner().flush().map_err(|source| Error::Io {
+            path: path.clone(),
+            source,
+        })
+    }
+
+    fn write(&self, topic: &str, kind: Kind, time_ns: u64, data: &[u8]) -> Result<()> {
+        let path = &self.shared.path;
+        let mut state = self.shared.lock();
+        let state = &mut *state;
+        state.writer(path)?;
+        let topic_entry = match state.topics.get_mut(topic) {
+            Some(t) => t,
+            None => state.add_channel(path, topic, kind, None)?,
+        };
+        if topic_entry.kind != kind {
+            return Err(topic_err(
+                path,
+                topic,
+                format!(
+                    "carries {}, not {}",
+                    topic_entry.kind.describe(),
+                    kind.describe()
+                ),
+            ));
+        }
+        let header = MessageHeader {
+            channel_id: topic_entry.channel,
+            sequence: topic_entry.sequence,
+            log_time: time_ns,
+            publish_time: time_ns,
+        };
+        topic_entry.sequence = topic_entry.sequence.wrapping_add(1);
+        state
+            .writer
+            .as_mut()
+            .expect("checked above")
+            .write_to_known_channel(&header, data)
+            .map_err(|e| mcap_err(path, e))?;
+        state.oldest_unflushed.get_or_insert_with(Instant::now);
+        state.flush_if_due(path, self.shared.flush_interval, Duration::ZERO)
+    }
+}
+
+impl Drop for RunLog {
+    fn drop(&mut self) {
+        let _ = self.close();
+    }
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // A panic elsewhere while holding the lock leaves the writer usable.
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+impl State {
+    fn writer(&mut self, path: &Path) -> Result<&mut McapWriter> {
+        if let Some(reason) = &self.failure {
+            return Err(Error::Failed {
+                path: path.to_path_buf(),
+                reason: reason.clone(),
+            });
+        }
+        self.writer.as_mut().ok_or_else(|| Error::Failed {
+            path: path.to_path_buf(),
+            reason: "the log is finished".into(),
+        })
+    }
+
+    fn add_channel(
+        &mut self,
+        path: &Path,
+        topic: &str,
+        kind: Kind,
+        json_schema: Option<(&str, &str)>,
+    ) -> Result<&mut Topic> {
+        self.writer(path)?;
+        let writer = self.writer.as_mut().expect("checked above");
+        let (schema_id, encoding) = match kind.proto_schema() {
+            Some(proto) => {
+                let id = match self.proto_schemas.get(&kind) {
+                    Some(&id) => id,
+                    None => {
+                        let id = writer
+                            .add_schema(proto.name, "protobuf", &proto.descriptor_set)
+                            .map_err(|e| mcap_err(path, e))?;
+                        self.proto_schemas.insert(kind, id);
+                        id
+                    }
+                };
+                (id, "protobuf")
+            }
+            None => {
+                let default_schema;
+                let (name, schema) = match json_schema {
+                    Some(declared) => declared,
+                    None => {
+                        default_schema =
+                            serde_json::json!({"title": topic, "type": "object"}).to_string();
+                        (topic.trim_start_matches('/'), default_schema.as_str())
+                    }
+                };
+                let id = writer
+                    .add_schema(name, "jsonschema", schema.as_bytes())
+                    .map_err(|e| mcap_err(path, e))?;
+                (id, "json")
+            }
+        };
+        let channel = writer
+            .add_channel(schema_id, topic, encoding, &BTreeMap::new())
+            .map_err(|e| mcap_err(path, e))?;
+        Ok(self.topics.entry(topic.to_string()).or_insert(Topic {
+            channel,
+            sequence: 0,
+            kind,
+        }))
+    }
+
+    fn flush(&mut self, path: &Path) -> Result<()> {
+        self.writer(path)?.flush().map_err(|e| mcap_err(path, e))?;
+        self.oldest_unflushed = None;
+        Ok(())
+    }
+
+    /// Flushes when the oldest unwritten message will be `interval` old within `ahead`.
+    fn flush_if_due(
+        &mut self,
+        path: &Path,
+        interval: Option<Duration>,
+        ahead: Duration,
+    ) -> Result<()> {
+        match (interval, self.oldest_unflushed) {
+            (Some(interval), Some(oldest)) if oldest.elapsed() + ahead >= interval => {
+                self.flush(path)
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The background thread that closes chunks in time when the process logs nothing more. It
+/// ends when the sender is dropped.
+fn spawn_flusher(
+    shared: Arc<Shared>,
+    interval: Duration,
+) -> Result<(mpsc::Sender<()>, JoinHandle<()>)> {
+    let (stop, stopped) = mpsc::channel::<()>();
+    let tick = (interval / 10).max(Duration::from_millis(1));
+    let path = shared.path.clone();
+    let thread = std::thread::Builder::new()
+        .name("mcaplog-flush".into())
+        .spawn(move || {
+            while let Err(RecvTimeoutError::Timeout) = stopped.recv_timeout(tick) {
+                let mut state = shared.lock();
+                if state.failure.is_some() || state.writer.is_none() {
+                    return;
+                }
+                // Flush one tick early: the next check would come too late.
+                if let Err(e) = state.flush_if_due(&shared.path, Some(interval), tick) {
+                    state.failure = Some(e.to_string());
+                    return;
+                }
+            }
+        })
+        .map_err(|source| Error::Io { path, source })?;
+    Ok((stop, thread))
+}
+
+fn mcap_err(path: &Path, source: mcap::McapError) -> Error {
+    Error::Mcap {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn topic_err(path: &Path, topic: &str, reason: String) -> Error {
+    Error::Topic {
+        path: path.to_path_buf(),
+        topic: topic.to_string(),
+        reason,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_log_can_be_shared_between_threads() {
+        fn shareable<T: Send + Sync>() {}
+        shareable::<RunLog>();
+    }
+}
