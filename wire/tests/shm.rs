@@ -366,7 +366,7 @@ fn another_protocol_version_is_refused_across_processes() {
 #[test]
 fn what_a_killed_publisher_delivered_is_still_received() {
     const TEST: &str = "what_a_killed_publisher_delivered_is_still_received";
-    const SENT: u64 = 20;
+    let sent = sent_before_kill();
     if let Some((_, run, _)) = helper_role() {
         send_numbered_and_hang(&run);
         return;
@@ -397,7 +397,7 @@ fn what_a_killed_publisher_delivered_is_still_received() {
         assert_eq!(again.removed, 0);
         assert_eq!(again.alive, vec![std::process::id() as i32]);
         // ... and the rest after it was killed and cleaned up.
-        for _ in 5..SENT {
+        for _ in 5..sent {
             poll("a message of the killed actor", || {
                 take(&mut subscriber).then_some(())
             });
@@ -406,7 +406,7 @@ fn what_a_killed_publisher_delivered_is_still_received() {
         // A new process joins the run, and the buffer hears from it.
         let mut restarted = helper(TEST, "actor", &run, "");
         next.set(0);
-        for _ in 0..SENT {
+        for _ in 0..sent {
             poll("a message of the restarted actor", || {
                 take(&mut subscriber).then_some(())
             });
@@ -418,12 +418,19 @@ fn what_a_killed_publisher_delivered_is_still_received() {
     assert_run_left_nothing(&run);
 }
 
-/// In a helper: sends 20 numbered messages, says it is ready, and waits to be killed.
+/// What the killed publisher sends: the 5 the subscriber reads first, then a full buffer
+/// that it has not read when the publisher dies.
+fn sent_before_kill() -> u64 {
+    5 + Topic::Steps.buffer() as u64
+}
+
+/// In a helper: sends [`sent_before_kill`] numbered messages, says it is ready, and waits
+/// to be killed.
 fn send_numbered_and_hang(run: &str) {
     let transport = ShmTransport::new(run, "actor").unwrap();
     let mut publisher = transport.publisher(Topic::Steps).unwrap();
     let mut bytes = Vec::new();
-    for seq in 0..20 {
+    for seq in 0..sent_before_kill() {
         numbered(0, seq, &mut bytes);
         publisher.send(&bytes).unwrap();
     }
