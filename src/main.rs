@@ -3,6 +3,7 @@
 
 mod bench;
 mod episode;
+mod inspect;
 mod mask_shape;
 mod pictures;
 mod run;
@@ -37,6 +38,11 @@ enum Command {
     /// One role of a training run (started by `train`, not by hand).
     #[command(hide = true)]
     Role(run::RoleArgs),
+    /// Read a run's MCAP logs: files, counts, the goal grasp success curve.
+    Inspect(inspect::InspectArgs),
+    /// Work on MCAP log files.
+    #[command(subcommand)]
+    Logs(inspect::LogsCommand),
     /// Measure the hot paths.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -49,6 +55,8 @@ fn main() -> Result<()> {
         Command::TrainSingle(args) => single::run(&args),
         Command::Train(args) => run::train(&args),
         Command::Role(args) => run::role_process(&args),
+        Command::Inspect(args) => inspect::inspect(&args),
+        Command::Logs(command) => inspect::logs(command),
         Command::Bench(command) => bench::run(command),
     }
 }

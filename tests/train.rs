@@ -2,6 +2,7 @@
 //! threads over channels), checked through what the run writes: its summary, the roles'
 //! reports, the checkpoint and the buffer snapshot.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -147,6 +148,117 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
     let summary = summary(logs.path(), "shm");
     assert_eq!(summary["actors_reports"].as_array().unwrap().len(), 2);
     assert!(assert_lossless(logs.path(), "shm") >= 16);
+}
+
+/// `pushgrasp inspect --json` of a run directory.
+fn inspect(dir: &Path) -> Value {
+    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .arg("inspect")
+        .arg(dir)
+        .arg("--json")
+        .output()
+        .expect("pushgrasp runs");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).expect("one JSON object")
+}
+
+/// The Python `mcap` reader's message counts per topic of a file, if `make test` could
+/// install it.
+fn python_counts(file: &Path) -> Option<BTreeMap<String, u64>> {
+    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/mcap-venv/bin/python3");
+    let script = "import sys, json, collections\n\
+from mcap.reader import make_reader\n\
+counts = collections.Counter()\n\
+with open(sys.argv[1], 'rb') as f:\n\
+    for schema, channel, message in make_reader(f).iter_messages():\n\
+        counts[channel.topic] += 1\n\
+print(json.dumps(counts))\n";
+    let output = Command::new(&python)
+        .args(["-c", script])
+        .arg(file)
+        .output()
+        .ok()?;
+    if !output.status.success() {
+        eprintln!(
+            "skipping the Python reader: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        return None;
+    }
+    Some(serde_json::from_slice(&output.stdout).expect("counts"))
+}
+
+#[test]
+fn the_logs_of_a_run_say_what_the_processes_counted() {
+    let logs = logs();
+    train_ok(
+        logs.path(),
+        &["--actors", "2", "--episodes", "12", "--run-id", "logged"],
+    );
+    let dir = logs.path().join("logged");
+    let summary = summary(logs.path(), "logged");
+    let report = inspect(&dir);
+    let received = u(&summary["buffer"]["steps_received"]);
+    assert_eq!(u(&report["steps_sent"]), received);
+    assert_eq!(u(&report["steps_received"]), received);
+    assert_eq!(report["episodes"], summary["buffer"]["episodes"]);
+    assert_eq!(report["learner_updates"], summary["learner"]["updates"]);
+    // The paper's metric by hand, from the buffer's curve.
+    let curve = std::fs::read_to_string(dir.join("curve.csv")).unwrap();
+    let grasped: Vec<bool> = curve
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1) == Some("1"))
+        .collect();
+    let last = &grasped[grasped.len().saturating_sub(30)..];
+    let by_hand = last.iter().filter(|&&g| g).count() as f64 / last.len() as f64;
+    let reported = report["goal_grasp_success_last30"].as_f64().unwrap();
+    assert!(
+        (reported - by_hand).abs() < 1e-12,
+        "{reported} vs {by_hand}"
+    );
+    let files = report["files"].as_array().unwrap();
+    assert_eq!(
+        files.len(),
+        5,
+        "launcher, buffer, learner, 2 actors: {files:?}"
+    );
+    for file in files {
+        assert_eq!(file["recovered"], false, "{file}");
+        let ours: BTreeMap<String, u64> = file["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| (c[0].as_str().unwrap().to_string(), u(&c[1])))
+            .collect();
+        if let Some(theirs) = python_counts(Path::new(file["file"].as_str().unwrap())) {
+            assert_eq!(ours, theirs, "{file}");
+        }
+    }
+
+    // A file cut mid-way is read as far as its complete chunks go, and recovered.
+    let actor = dir.join("actor-0-0.mcap");
+    let bytes = std::fs::read(&actor).unwrap();
+    let cut = logs.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let damaged = inspect(&cut);
+    assert_eq!(damaged["files"][0]["recovered"], true);
+    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .args(["logs", "recover"])
+        .arg(&cut)
+        .output()
+        .unwrap();
+    assert!(output.status.success());
+    let repaired = inspect(&logs.path().join("cut.recovered.mcap"));
+    assert_eq!(repaired["files"][0]["recovered"], false);
+    assert_eq!(
+        repaired["files"][0]["messages"],
+        damaged["files"][0]["messages"]
+    );
 }
 
 #[test]

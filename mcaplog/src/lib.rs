@@ -21,7 +21,7 @@ mod read;
 mod write;
 
 pub use foxglove::{CompressedImage, Log, LogLevel, RawImage, timestamp};
-pub use read::{ChannelSummary, FileSummary, read_summary, recover};
+pub use read::{ChannelSummary, FileSummary, json_messages, read_summary, recover};
 pub use write::{Options, RunLog};
 
 use std::path::PathBuf;

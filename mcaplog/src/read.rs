@@ -188,6 +188,34 @@ pub fn recover(input: impl AsRef<Path>, output: impl AsRef<Path>) -> Result<File
     Ok(summary)
 }
 
+/// The JSON messages on `topic`, in file order, read from the start (so a file cut by a
+/// crash gives every message of its complete chunks). A message that is not JSON is an error
+/// naming the file and the topic.
+pub fn json_messages(path: impl AsRef<Path>, topic: &str) -> Result<Vec<serde_json::Value>> {
+    let path = path.as_ref();
+    let (mut file, _) = open_mcap(path)?;
+    let mut channels: HashMap<u16, bool> = HashMap::new();
+    let mut values = Vec::new();
+    scan(&mut file, path, |record| {
+        match record {
+            Record::Channel(c) => {
+                channels.insert(c.id, c.topic == topic && c.message_encoding == "json");
+            }
+            Record::Message { header, data } if channels.get(&header.channel_id) == Some(&true) => {
+                let value = serde_json::from_slice(&data).map_err(|e| Error::Topic {
+                    path: path.to_path_buf(),
+                    topic: topic.to_string(),
+                    reason: format!("a message is not JSON: {e}"),
+                })?;
+                values.push(value);
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
+    Ok(values)
+}
+
 type OutWriter = mcap::Writer<BufWriter<File>>;
 
 /// Copies one record of the input into the recovered file (opening it at the first record).

@@ -6,10 +6,11 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
-use actor::{Decision, Mode, PolicyInput, grasp_reward, push_reward};
+use actor::{Decision, Mode, PolicyInput, QMaps, grasp_reward, push_reward};
 use anyhow::{Context, Result};
 use buffer::Transition;
 use learner::label::{grasp_label, push_label};
+use mcaplog::RunLog;
 use qnet::{Geometry, NetInput, QNets};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -21,6 +22,9 @@ use wire::{
 };
 
 use super::config::RunConfig;
+use super::record::{
+    ACTOR_COLOUR, ACTOR_EPISODE, ACTOR_GRASP_Q, ACTOR_HEIGHT, ACTOR_STEP, EpisodeRecord, StepRecord,
+};
 use super::{Lifeline, stop_requested};
 
 /// Which actor this is: its index in the run and how many times that index was started.
@@ -69,9 +73,12 @@ struct Pending {
     push_changed: Option<sim::measure::ChangeReport>,
     /// For a grasp: the episode it ends.
     ends: Option<EpisodeEnd>,
+    /// The scene the episode played on.
+    scene_seed: u64,
 }
 
-struct Shipper {
+struct Shipper<'a> {
+    log: &'a RunLog,
     outbox: Outbox,
     origin: Origin,
     gamma: f32,
@@ -79,7 +86,7 @@ struct Shipper {
     steps_sent: u64,
 }
 
-impl Shipper {
+impl Shipper<'_> {
     fn next_origin(&mut self) -> Origin {
         let origin = self.origin;
         self.origin.seq += 1;
@@ -117,19 +124,55 @@ impl Shipper {
             }
         };
         t.next_value = next_value;
+        let d = &pending.decision;
         let step = Step {
             origin: self.next_origin(),
-            priority: f64::from((label - pending.decision.predicted_q).abs()),
-            predicted_q: pending.decision.predicted_q,
-            explored: pending.decision.explored,
+            priority: f64::from((label - d.predicted_q).abs()),
+            predicted_q: d.predicted_q,
+            explored: d.explored,
             weights_version: self.weights_version,
             transition: pending.transition,
         };
+        let t = &step.transition;
+        let record = StepRecord {
+            actor: step.origin.actor,
+            incarnation: step.origin.incarnation,
+            episode: t.episode,
+            step: t.step,
+            goal: t.goal,
+            primitive: format!("{:?}", t.action.primitive).to_lowercase(),
+            rotation: t.action.rotation,
+            angle_deg: t.action.angle().to_degrees(),
+            row: t.action.row,
+            col: t.action.col,
+            predicted_q: d.predicted_q,
+            goal_grasp_q: d.goal_grasp_q,
+            explored: d.explored,
+            reason: format!("{:?}", d.reason),
+            reward: t.reward,
+            grasped: t.grasped,
+            priority: step.priority,
+            weights_version: self.weights_version,
+        };
         self.outbox.send(&Message::Step(step))?;
         self.steps_sent += 1;
+        self.log.json(ACTOR_STEP, &record)?;
         if let Some(mut end) = pending.ends {
             end.origin = self.next_origin();
-            self.outbox.send(&Message::EpisodeEnd(end))?;
+            self.outbox.send(&Message::EpisodeEnd(end.clone()))?;
+            self.log.json(
+                ACTOR_EPISODE,
+                &EpisodeRecord {
+                    actor: end.origin.actor,
+                    incarnation: end.origin.incarnation,
+                    episode: end.episode,
+                    scene_seed: pending.scene_seed,
+                    goal: end.goal,
+                    grasped: end.grasped,
+                    goal_grasped: end.goal_grasped(),
+                    steps: end.steps,
+                },
+            )?;
         }
         Ok(())
     }
@@ -180,7 +223,7 @@ impl Policy {
         pushes_so_far: usize,
         epsilon: f32,
         rng: &mut ChaCha8Rng,
-    ) -> Result<Decision> {
+    ) -> Result<(Decision, QMaps)> {
         let input = NetInput::encode(obs, goal);
         let grasp = self
             .nets
@@ -200,13 +243,8 @@ impl Policy {
             push: push.as_ref(),
             pushes_so_far,
         };
-        Ok(actor::choose(
-            &config.policy,
-            config.mode(),
-            &policy_input,
-            epsilon,
-            rng,
-        )?)
+        let decision = actor::choose(&config.policy, config.mode(), &policy_input, epsilon, rng)?;
+        Ok((decision, grasp))
     }
 }
 
@@ -215,11 +253,13 @@ pub fn run(
     transport: &dyn Transport,
     config: &RunConfig,
     id: ActorId,
+    log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<ActorReport> {
     let mut control = Inbox::open(transport, Topic::Control)?;
     let mut status = Outbox::open(transport, Topic::Status)?;
     let mut shipper = Shipper {
+        log,
         outbox: Outbox::open(transport, Topic::Steps)?,
         origin: Origin {
             actor: id.index,
@@ -279,7 +319,12 @@ pub fn run(
         let mut step = 0u32;
         loop {
             let epsilon = config.epsilon(id.index, report.actions);
-            let decision = policy.decide(config, &obs, goal, step as usize, epsilon, &mut rng)?;
+            let (decision, grasp_maps) =
+                policy.decide(config, &obs, goal, step as usize, epsilon, &mut rng)?;
+            let every = config.logging.image_every;
+            if every > 0 && step == 0 && report.episodes.is_multiple_of(every) {
+                log_images(log, &obs, &grasp_maps)?;
+            }
             if let Some(p) = pending.take() {
                 shipper.ship(p, Some(&decision))?;
             }
@@ -303,6 +348,7 @@ pub fn run(
                     transition,
                     decision,
                     ends: None,
+                    scene_seed,
                 });
                 // Stop between actions, not only between episodes: a push chain can be long.
                 if lifeline.lost() || stop_requested(&mut control, Role::Actor)? {
@@ -329,6 +375,7 @@ pub fn run(
                 transition,
                 decision,
                 push_changed: None,
+                scene_seed,
             });
             report.episodes += 1;
             report.goal_grasps += u64::from(goal_grasped);
@@ -348,4 +395,30 @@ pub fn run(
     report.weights_version = policy.version;
     report.acting_s = acting.elapsed().as_secs_f64();
     Ok(report)
+}
+
+/// What the actor saw: colour, height (tenths of a millimetre) and the best grasp Q over the
+/// rotations (hundredths, so 0..2.55), as images Foxglove shows as they are.
+fn log_images(log: &RunLog, obs: &Heightmaps, grasp: &QMaps) -> Result<()> {
+    let side = obs.side();
+    let t = mcaplog::now_ns();
+    let colour: Vec<u8> = obs.colour.iter().flatten().copied().collect();
+    let height: Vec<u8> = obs
+        .height
+        .iter()
+        .flat_map(|h| ((h * 1e4).round().clamp(0.0, 65535.0) as u16).to_le_bytes())
+        .collect();
+    let q: Vec<u8> = (0..side * side)
+        .map(|i| {
+            let best = (0..grasp.rotations())
+                .map(|k| grasp.get(k, i / side, i % side))
+                .fold(f32::NEG_INFINITY, f32::max);
+            (best * 100.0).round().clamp(0.0, 255.0) as u8
+        })
+        .collect();
+    let side = side as u32;
+    log.raw_image(ACTOR_COLOUR, t, side, side, "rgb8", &colour)?;
+    log.raw_image(ACTOR_HEIGHT, t, side, side, "mono16", &height)?;
+    log.raw_image(ACTOR_GRASP_Q, t, side, side, "mono8", &q)?;
+    Ok(())
 }

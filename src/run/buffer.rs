@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use buffer::ReplayBuffer;
+use mcaplog::RunLog;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -22,6 +23,7 @@ use wire::{
 };
 
 use super::config::RunConfig;
+use super::record::{BUFFER_EPISODE, BUFFER_STATS};
 use super::{Lifeline, STATUS_EVERY, SUCCESS_WINDOW, write_json};
 
 /// What one actor incarnation's stream delivered.
@@ -261,6 +263,7 @@ pub fn run(
     config: &RunConfig,
     dir: &Path,
     resume: bool,
+    log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<BufferReport> {
     let files = BufferFiles::in_dir(dir);
@@ -314,7 +317,10 @@ pub fn run(
         while actors_stopped || stop || role.replay.can_insert(1) {
             match steps.try_recv()? {
                 Some(Message::Step(step)) => role.step(step)?,
-                Some(Message::EpisodeEnd(end)) => role.episode_end(end)?,
+                Some(Message::EpisodeEnd(end)) => {
+                    log.json(BUFFER_EPISODE, &end)?;
+                    role.episode_end(end)?;
+                }
                 Some(other) => bail!("the steps topic carried {other:?}"),
                 None => break,
             }
@@ -337,6 +343,7 @@ pub fn run(
         busy |= role.serve(&mut batches)?;
         if last_status.elapsed() >= STATUS_EVERY {
             status.send(&Message::Status(role.status()))?;
+            log.json(BUFFER_STATS, &role.report)?;
             last_status = Instant::now();
         }
         if !busy {
@@ -345,5 +352,6 @@ pub fn run(
     }
     role.save(&files)?;
     status.send(&Message::Status(role.status()))?;
+    log.json(BUFFER_STATS, &role.report)?;
     Ok(role.report)
 }

@@ -44,6 +44,23 @@ pub struct RunConfig {
     pub buffer: BufferConfig,
     #[serde(default)]
     pub learner: LearnerSchedule,
+    #[serde(default)]
+    pub logging: LoggingConfig,
+}
+
+/// What the roles write to their MCAP logs beyond every step, episode and update.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoggingConfig {
+    /// An actor logs what it saw (colour, height, grasp Q) at the start of every this many
+    /// episodes (0: never).
+    pub image_every: u64,
+}
+
+impl Default for LoggingConfig {
+    fn default() -> Self {
+        Self { image_every: 10 }
+    }
 }
 
 /// Ape-X's per-actor exploration rates (Horgan et al. 2018 use epsilon 0.4, alpha 7).

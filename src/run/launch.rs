@@ -15,6 +15,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use mcaplog::{LogLevel, RunLog};
 use serde::{Deserialize, Serialize};
 use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Status, Topic, Transport};
 
@@ -22,6 +23,7 @@ use super::actor::{ActorId, ActorReport};
 use super::buffer::BufferReport;
 use super::config::RunConfig;
 use super::learner::LearnerReport;
+use super::record::{LAUNCHER_PROGRESS, LAUNCHER_SUMMARY};
 use super::{Lifeline, write_json};
 
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
@@ -101,15 +103,21 @@ pub fn run_role(
     let reports = dir.join("reports");
     std::fs::create_dir_all(&reports)?;
     let path = reports.join(format!("{}.json", spec.name()));
+    let log = open_log(dir, &spec.name(), config)?;
+    log.log_line(LogLevel::Info, &format!("{} started", spec.name()))?;
     let result = match spec {
-        RoleSpec::Buffer => super::buffer::run(transport, config, dir, resume, lifeline)
+        RoleSpec::Buffer => super::buffer::run(transport, config, dir, resume, &log, lifeline)
             .and_then(|r| write_json(&path, &r)),
-        RoleSpec::Learner => super::learner::run(transport, config, dir, resume, lifeline)
+        RoleSpec::Learner => super::learner::run(transport, config, dir, resume, &log, lifeline)
             .and_then(|r| write_json(&path, &r)),
-        RoleSpec::Actor(id) => {
-            super::actor::run(transport, config, id, lifeline).and_then(|r| write_json(&path, &r))
-        }
+        RoleSpec::Actor(id) => super::actor::run(transport, config, id, &log, lifeline)
+            .and_then(|r| write_json(&path, &r)),
     };
+    match &result {
+        Ok(()) => log.log_line(LogLevel::Info, &format!("{} stopped", spec.name()))?,
+        Err(e) => log.log_line(LogLevel::Fatal, &format!("{} failed: {e:#}", spec.name()))?,
+    }
+    log.finish()?;
     if let Err(e) = &result {
         let failed = Status::Failed {
             role: spec.role(),
@@ -120,6 +128,14 @@ pub fn run_role(
         }
     }
     result
+}
+
+/// A process's MCAP log in the run directory, opened with the run's resolved config.
+fn open_log(dir: &Path, name: &str, config: &RunConfig) -> Result<RunLog> {
+    let log = RunLog::create(dir.join(format!("{name}.mcap")), name)?;
+    let config = BTreeMap::from([("toml".to_string(), toml::to_string(config)?)]);
+    log.metadata("config", &config)?;
+    Ok(log)
 }
 
 /// A running role: a child process, or a thread of this one.
@@ -193,6 +209,7 @@ struct Launcher {
     dir: PathBuf,
     resume: bool,
     slots: Vec<Slot>,
+    log: RunLog,
     restarts: u32,
     /// Restarts per actor index.
     crashes: BTreeMap<u32, u32>,
@@ -249,6 +266,8 @@ impl Launcher {
                 Worker::Thread(Some(handle))
             }
         };
+        self.log
+            .log_line(LogLevel::Info, &format!("started the {}", spec.name()))?;
         self.slots.push(Slot {
             spec,
             worker,
@@ -309,7 +328,9 @@ impl Launcher {
             match slot.spec {
                 RoleSpec::Actor(id) => {
                     let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
-                    eprintln!("{} {why}; starting it again", slot.spec.name());
+                    let message = format!("{} {why}; starting it again", slot.spec.name());
+                    eprintln!("{message}");
+                    self.log.log_line(LogLevel::Warning, &message)?;
                     restart.push(ActorId {
                         index: id.index,
                         incarnation: id.incarnation + 1,
@@ -581,6 +602,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         dir: dir.clone(),
         resume: args.resume,
         slots: Vec::new(),
+        log: open_log(&dir, "launcher", &config)?,
         restarts: 0,
         crashes: BTreeMap::new(),
     };
@@ -602,6 +624,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     };
     let outcome = supervise(&mut launcher, &mut status, &mut control, &signals, start);
     if let Err(e) = outcome {
+        let _ = launcher.log.log_line(LogLevel::Fatal, &format!("{e:#}"));
         // Stop what still runs, in order, so the checkpoint and snapshot are written if
         // their roles are alive; then report the failure.
         for role in [Role::Actor, Role::Learner, Role::Buffer] {
@@ -633,6 +656,8 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         actors_reports,
     };
     write_json(&dir.join("summary.json"), &summary)?;
+    launcher.log.json(LAUNCHER_SUMMARY, &summary)?;
+    launcher.log.finish()?;
     println!(
         "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost), {} learner updates, {} actor restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
         if interrupted { "interrupted" } else { "done" },
@@ -722,6 +747,7 @@ fn supervise(
     let (mut last_print, mut last_updates, mut last_rate_at) =
         (Instant::now(), progress.updates, Instant::now());
     let mut updates_per_s = 0.0;
+    let mut last_logged = Instant::now();
     loop {
         failures.extend(take(status, &mut progress)?);
         launcher.check(&failures)?;
@@ -735,6 +761,10 @@ fn supervise(
                 / last_rate_at.elapsed().as_secs_f64();
             last_updates = progress.updates;
             last_rate_at = Instant::now();
+        }
+        if last_logged.elapsed() >= Duration::from_secs(1) {
+            launcher.log.json(LAUNCHER_PROGRESS, &progress)?;
+            last_logged = Instant::now();
         }
         let line = progress.line(updates_per_s);
         match &bar {

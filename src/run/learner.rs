@@ -15,6 +15,7 @@ use buffer::Transition;
 use learner::checkpoint::config_hash;
 use learner::label::{grasp_label, push_label};
 use learner::{Checkpoint, Manifest, Sample, Trainer};
+use mcaplog::RunLog;
 use qnet::{NetInput, QNets};
 use serde::{Deserialize, Serialize};
 use sim::Primitive;
@@ -24,6 +25,7 @@ use wire::{
 };
 
 use super::config::RunConfig;
+use super::record::{LEARNER_UPDATE, UpdateRecord};
 use super::{Lifeline, STATUS_EVERY, stop_requested};
 
 const IN_FLIGHT: usize = 2;
@@ -62,6 +64,7 @@ fn sample(transition: &Transition, weight: f32, gamma: f32) -> Sample {
 
 struct LearnerRole<'a> {
     config: &'a RunConfig,
+    log: &'a RunLog,
     trainer: Trainer,
     checkpoint: Checkpoint,
     /// Updates before this process started (from the checkpoint resumed).
@@ -130,6 +133,18 @@ impl LearnerRole<'_> {
             .collect();
         let step = self.trainer.train_step(&samples)?;
         self.report.last_loss = Some(step.loss);
+        let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len().max(1) as f32;
+        self.log.json(
+            LEARNER_UPDATE,
+            &UpdateRecord {
+                updates: self.updates(),
+                primitive: format!("{:?}", net.primitive()).to_lowercase(),
+                batch: samples.len(),
+                loss: step.loss,
+                mean_predicted_q: mean(&step.predicted),
+                mean_td_error: mean(&step.td_errors),
+            },
+        )?;
         Ok(PriorityUpdate {
             updates: batch
                 .items
@@ -148,6 +163,7 @@ pub fn run(
     config: &RunConfig,
     dir: &Path,
     resume: bool,
+    log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<LearnerReport> {
     let device = qnet::Backend::selected().device();
@@ -156,6 +172,7 @@ pub fn run(
     let nets = QNets::new(&config.net, &device);
     let mut role = LearnerRole {
         config,
+        log,
         trainer: Trainer::new(
             nets,
             &config.net,

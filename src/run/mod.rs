@@ -8,6 +8,7 @@ pub mod buffer;
 pub mod config;
 pub mod launch;
 pub mod learner;
+pub mod record;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
