@@ -94,20 +94,25 @@ pub fn inspect(args: &InspectArgs) -> Result<()> {
     let mut outcomes = Vec::new();
     for file in mcap_files(&args.path)? {
         let summary = mcaplog::read_summary(&file)?;
+        // Each topic read is a pass over the file: only where the topic has messages.
+        let messages = |topic: &str| -> Result<Vec<Value>> {
+            if summary.messages_on(topic) == 0 {
+                return Ok(Vec::new());
+            }
+            Ok(mcaplog::json_messages(&file, topic)?)
+        };
         report.steps_sent += summary.messages_on(ACTOR_STEP);
-        if summary.messages_on(ACTOR_STEP) > 0 {
-            report.grasp_attempts += mcaplog::json_messages(&file, ACTOR_STEP)?
-                .iter()
-                .filter(|s| s["primitive"] == "grasp")
-                .count() as u64;
-        }
-        for end in mcaplog::json_messages(&file, BUFFER_EPISODE)? {
+        report.grasp_attempts += messages(ACTOR_STEP)?
+            .iter()
+            .filter(|s| s["primitive"] == "grasp")
+            .count() as u64;
+        for end in messages(BUFFER_EPISODE)? {
             outcomes.push(end["grasped"] == end["goal"]);
         }
-        if let Some(last) = mcaplog::json_messages(&file, BUFFER_STATS)?.last() {
+        if let Some(last) = messages(BUFFER_STATS)?.last() {
             report.steps_received = count(last, "steps_received");
         }
-        if let Some(last) = mcaplog::json_messages(&file, LEARNER_UPDATE)?.last() {
+        if let Some(last) = messages(LEARNER_UPDATE)?.last() {
             report.learner_updates = count(last, "updates");
         }
         report.files.push(FileReport {

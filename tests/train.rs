@@ -3,7 +3,7 @@
 //! reports, the checkpoint and the buffer snapshot.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -427,5 +427,4 @@ fn a_bad_config_is_refused_naming_the_file_and_field() {
         stderr.contains("bad.toml") && stderr.contains("stage"),
         "{stderr}"
     );
-    let _: PathBuf = bad;
 }

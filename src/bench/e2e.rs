@@ -3,7 +3,6 @@
 //! actor's actions over its own acting time, so process start-up is left out) and the
 //! learner's updates per second, read from the runs' reports.
 
-use std::path::Path;
 use std::process::Command;
 
 use anyhow::{Context, Result, bail};
@@ -11,6 +10,7 @@ use clap::Args;
 use serde_json::{Map, Value};
 
 use super::print_figures;
+use crate::run::read_json;
 
 #[derive(Args)]
 pub struct E2eBenchArgs {
@@ -46,7 +46,7 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
                 String::from_utf8_lossy(&output.stderr)
             );
         }
-        let summary = read(&logs.path().join(&run_id).join("summary.json"))?;
+        let summary: Value = read_json(&logs.path().join(&run_id).join("summary.json"))?;
         let actions_per_s: f64 = summary["actors_reports"]
             .as_array()
             .into_iter()
@@ -67,9 +67,4 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
 
 fn round(x: f64) -> Value {
     ((x * 100.0).round() / 100.0).into()
-}
-
-fn read(path: &Path) -> Result<Value> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    Ok(serde_json::from_slice(&bytes)?)
 }

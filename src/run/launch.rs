@@ -24,7 +24,7 @@ use super::buffer::BufferReport;
 use super::config::RunConfig;
 use super::learner::LearnerReport;
 use super::record::{LAUNCHER_PROGRESS, LAUNCHER_SUMMARY};
-use super::{Lifeline, write_json};
+use super::{Lifeline, read_json, write_json};
 
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
 const MAX_RESTARTS: u32 = 10;
@@ -154,17 +154,12 @@ impl Worker {
                 Ok(Some(status)) => Some(Err(format!("exited with {status}"))),
                 Err(e) => Some(Err(format!("cannot be waited for: {e}"))),
             },
-            Worker::Thread(handle) => {
-                if !handle.as_ref().is_some_and(|h| h.is_finished()) {
-                    return handle.is_none().then_some(Ok(()));
-                }
-                let outcome = handle.take().expect("checked").join();
-                Some(match outcome {
-                    Ok(Ok(())) => Ok(()),
-                    Ok(Err(e)) => Err(format!("{e:#}")),
-                    Err(_) => Err("panicked".into()),
-                })
-            }
+            // Joined once, when it finished; the slot is done after that.
+            Worker::Thread(handle) => handle.take_if(|h| h.is_finished()).map(|h| match h.join() {
+                Ok(Ok(())) => Ok(()),
+                Ok(Err(e)) => Err(format!("{e:#}")),
+                Err(_) => Err("panicked".into()),
+            }),
         }
     }
 
@@ -210,7 +205,6 @@ struct Launcher {
     resume: bool,
     slots: Vec<Slot>,
     log: RunLog,
-    restarts: u32,
     /// Restarts per actor index.
     crashes: BTreeMap<u32, u32>,
 }
@@ -354,7 +348,6 @@ impl Launcher {
             }
         }
         for id in restart {
-            self.restarts += 1;
             let crashes = self.crashes.entry(id.index).or_insert(0);
             *crashes += 1;
             if *crashes > MAX_RESTARTS {
@@ -395,6 +388,11 @@ impl Launcher {
         }
         self.write_processes()?;
         Ok(problems)
+    }
+
+    /// Actor restarts so far.
+    fn restarts(&self) -> u32 {
+        self.crashes.values().sum()
     }
 
     fn kill_all(&mut self) {
@@ -528,11 +526,6 @@ fn last_error(log: &Path) -> Option<String> {
     )
 }
 
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    serde_json::from_slice(&bytes).with_context(|| format!("reading {}", path.display()))
-}
-
 pub fn train(args: &TrainArgs) -> Result<()> {
     let run_id = match (&args.run_id, args.resume) {
         (Some(id), _) => id.clone(),
@@ -603,7 +596,6 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         resume: args.resume,
         slots: Vec::new(),
         log: open_log(&dir, "launcher", &config)?,
-        restarts: 0,
         crashes: BTreeMap::new(),
     };
     println!(
@@ -648,7 +640,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let summary = Summary {
         run_id,
         actors: config.actors,
-        restarts: launcher.restarts,
+        restarts: launcher.restarts(),
         interrupted,
         wall_s: start.elapsed().as_secs_f64(),
         buffer: read_json(&reports.join("buffer.json"))?,
@@ -770,7 +762,7 @@ fn supervise(
         match &bar {
             Some(bar) => {
                 bar.set_position(progress.episodes);
-                bar.set_message(format!("{line} | restarts {}", launcher.restarts));
+                bar.set_message(format!("{line} | restarts {}", launcher.restarts()));
             }
             None if last_print.elapsed() >= Duration::from_secs(10) => {
                 println!(
