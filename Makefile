@@ -27,6 +27,7 @@ bench:
 	test -x $(BENCH_VENV)/bin/python3 || { python3 -m venv $(BENCH_VENV) && $(BENCH_VENV)/bin/python3 -m pip install -q cpprb; } || echo "cpprb not installed: bench buffer runs alone"
 	$(CARGO) run --release -- bench buffer
 	$(CARGO) run --release -- bench e2e
+	$(CARGO) run --release -- bench logging
 
 lint:
 	$(CARGO) fmt --all -- --check

@@ -150,20 +150,26 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
     assert!(assert_lossless(logs.path(), "shm") >= 16);
 }
 
-/// `pushgrasp inspect --json` of a run directory.
-fn inspect(dir: &Path) -> Value {
+/// `pushgrasp inspect <args>`: its output, or its error.
+fn inspect_with(args: &[&std::ffi::OsStr]) -> Result<String, String> {
     let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
         .arg("inspect")
-        .arg(dir)
-        .arg("--json")
+        .args(args)
         .output()
         .expect("pushgrasp runs");
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    serde_json::from_slice(&output.stdout).expect("one JSON object")
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    if output.status.success() {
+        Ok(stdout)
+    } else {
+        Err(stderr)
+    }
+}
+
+/// `pushgrasp inspect --json` of a run directory.
+fn inspect(dir: &Path) -> Value {
+    let output = inspect_with(&[dir.as_os_str(), "--json".as_ref()]).unwrap();
+    serde_json::from_str(&output).expect("one JSON object")
 }
 
 /// The Python `mcap` reader's message counts per topic of a file, if `make test` could
@@ -259,6 +265,117 @@ fn the_logs_of_a_run_say_what_the_processes_counted() {
         repaired["files"][0]["messages"],
         damaged["files"][0]["messages"]
     );
+}
+
+#[test]
+fn inspect_draws_overlaid_curves_and_exports_an_episodes_pictures() {
+    let logs = logs();
+    for run in ["a", "b"] {
+        train_ok(
+            logs.path(),
+            &[
+                "--threads",
+                "--actors",
+                "2",
+                "--episodes",
+                "24",
+                "--run-id",
+                run,
+            ],
+        );
+    }
+    let (a, b) = (logs.path().join("a"), logs.path().join("b"));
+    let both: Value = serde_json::from_str(
+        &inspect_with(&[a.as_os_str(), b.as_os_str(), "--json".as_ref()]).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(both.as_array().map(Vec::len), Some(2));
+    assert_eq!(both[1]["run"], "b");
+    assert!(!both[0]["goal_grasp_q"].as_array().unwrap().is_empty());
+
+    // One figure overlays both runs: SVG text names them, the PNG decodes.
+    let svg = logs.path().join("curves.svg");
+    let png = logs.path().join("curves.png");
+    for figure in [&svg, &png] {
+        inspect_with(&[
+            a.as_os_str(),
+            b.as_os_str(),
+            "--plot".as_ref(),
+            figure.as_os_str(),
+        ])
+        .unwrap();
+    }
+    let text = std::fs::read_to_string(&svg).unwrap();
+    for label in ["Goal grasp success (last 30 episodes)", "Q*", "a", "b"] {
+        assert!(text.lines().any(|l| l == label), "{label} not in the SVG");
+    }
+    let picture = image::open(&png).unwrap();
+    assert!(picture.width() > 600 && picture.height() > 400);
+
+    // Each actor logs the pictures of its first episode: the first episode taken in has them.
+    let report = inspect(&a);
+    let actor_file = &report["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["file"].as_str().unwrap().ends_with("actor-0-0.mcap"))
+        .unwrap()["channels"];
+    let on = |topic: &str| {
+        actor_file
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c[0] == topic)
+            .map_or(0, |c| u(&c[1]))
+    };
+    assert!(on("/actor/scene") >= 1 && on("/actor/scene") == on("/actor/colour"));
+    let out = logs.path().join("episode-1");
+    let said = inspect_with(&[
+        a.as_os_str(),
+        "--episode".as_ref(),
+        "1".as_ref(),
+        "--export".as_ref(),
+        out.as_os_str(),
+    ])
+    .unwrap();
+    assert!(said.contains("files written"), "{said}");
+    let colour = image::open(out.join("step-0-colour.png"))
+        .unwrap()
+        .to_rgb8();
+    assert_eq!(colour.dimensions(), (112, 112));
+    assert!(
+        colour.pixels().any(|p| p != colour.get_pixel(0, 0)),
+        "a flat picture"
+    );
+    let height = image::open(out.join("step-0-height.png")).unwrap();
+    assert_eq!(height.color(), image::ColorType::L16);
+    let episode = json(&out.join("episode.json"));
+    assert_eq!(episode["episode"]["number"], 1);
+    assert_eq!(episode["steps"].as_array().unwrap().len(), 1);
+
+    // An episode without pictures, and one beyond the run, are refused with the reason.
+    let without = report["episodes"].as_u64().unwrap();
+    let err = inspect_with(&[
+        a.as_os_str(),
+        "--episode".as_ref(),
+        without.to_string().as_ref(),
+        "--export".as_ref(),
+        out.as_os_str(),
+    ])
+    .unwrap_err();
+    assert!(
+        err.contains("has no pictures") && err.contains("episodes with pictures: 1"),
+        "{err}"
+    );
+    let err = inspect_with(&[
+        a.as_os_str(),
+        "--episode".as_ref(),
+        "100000".as_ref(),
+        "--export".as_ref(),
+        out.as_os_str(),
+    ])
+    .unwrap_err();
+    assert!(err.contains("no episode 100000"), "{err}");
 }
 
 #[test]

@@ -1,8 +1,9 @@
 //! The Foxglove message schemas this crate writes, in protobuf encoding.
 //!
-//! The structs carry the fields of `foxglove.RawImage`, `foxglove.CompressedImage` and
-//! `foxglove.Log` (same names, numbers and types as Foxglove's published `.proto` files; the
-//! newer optional fields `message_id` and `lineage` are left out, which protobuf allows). The
+//! The structs carry the fields of `foxglove.RawImage`, `foxglove.CompressedImage`,
+//! `foxglove.Log` and `foxglove.SceneUpdate` (same names, numbers and types as Foxglove's
+//! published `.proto` files; fields this project never sets, such as the newer optional
+//! `message_id` and `lineage`, are left out, which protobuf allows). The
 //! MCAP schema of each is a `FileDescriptorSet` built here in code from the same field list, so
 //! there is no `protoc` step and no generated file to keep in step: the descriptor and the
 //! struct are side by side below.
@@ -98,6 +99,96 @@ pub enum LogLevel {
     Fatal = 5,
 }
 
+/// `foxglove.SceneUpdate`: entities to add to (or replace in) a 3D scene.
+#[derive(Clone, PartialEq, Message)]
+pub struct SceneUpdate {
+    /// The entities; one replaces an earlier one on the same topic with the same id.
+    #[prost(message, repeated, tag = "2")]
+    pub entities: Vec<SceneEntity>,
+}
+
+/// `foxglove.SceneEntity`: one thing in the scene, here made of boxes.
+#[derive(Clone, PartialEq, Message)]
+pub struct SceneEntity {
+    /// When the entity was seen.
+    #[prost(message, optional, tag = "1")]
+    pub timestamp: Option<prost_types::Timestamp>,
+    /// Frame of reference of the primitives.
+    #[prost(string, tag = "2")]
+    pub frame_id: String,
+    /// Identifier: an entity replaces the one with the same id.
+    #[prost(string, tag = "3")]
+    pub id: String,
+    /// Removed this long after `timestamp`; zero (or none) keeps it until replaced.
+    #[prost(message, optional, tag = "4")]
+    pub lifetime: Option<prost_types::Duration>,
+    /// Whether it follows `frame_id` as that frame moves.
+    #[prost(bool, tag = "5")]
+    pub frame_locked: bool,
+    /// Boxes.
+    #[prost(message, repeated, tag = "8")]
+    pub cubes: Vec<CubePrimitive>,
+}
+
+/// `foxglove.CubePrimitive`: a box.
+#[derive(Clone, PartialEq, Message)]
+pub struct CubePrimitive {
+    /// Its centre and orientation.
+    #[prost(message, optional, tag = "1")]
+    pub pose: Option<Pose>,
+    /// Its full extent along each of its axes (metres).
+    #[prost(message, optional, tag = "2")]
+    pub size: Option<Vector3>,
+    #[prost(message, optional, tag = "3")]
+    pub color: Option<Color>,
+}
+
+/// `foxglove.Pose`.
+#[derive(Clone, PartialEq, Message)]
+pub struct Pose {
+    #[prost(message, optional, tag = "1")]
+    pub position: Option<Vector3>,
+    #[prost(message, optional, tag = "2")]
+    pub orientation: Option<Quaternion>,
+}
+
+/// `foxglove.Vector3`.
+#[derive(Clone, Copy, PartialEq, Message)]
+pub struct Vector3 {
+    #[prost(double, tag = "1")]
+    pub x: f64,
+    #[prost(double, tag = "2")]
+    pub y: f64,
+    #[prost(double, tag = "3")]
+    pub z: f64,
+}
+
+/// `foxglove.Quaternion`.
+#[derive(Clone, Copy, PartialEq, Message)]
+pub struct Quaternion {
+    #[prost(double, tag = "1")]
+    pub x: f64,
+    #[prost(double, tag = "2")]
+    pub y: f64,
+    #[prost(double, tag = "3")]
+    pub z: f64,
+    #[prost(double, tag = "4")]
+    pub w: f64,
+}
+
+/// `foxglove.Color`: RGBA, each from 0 to 1.
+#[derive(Clone, Copy, PartialEq, Message)]
+pub struct Color {
+    #[prost(double, tag = "1")]
+    pub r: f64,
+    #[prost(double, tag = "2")]
+    pub g: f64,
+    #[prost(double, tag = "3")]
+    pub b: f64,
+    #[prost(double, tag = "4")]
+    pub a: f64,
+}
+
 /// A protobuf timestamp from nanoseconds since the Unix epoch.
 pub fn timestamp(ns: u64) -> prost_types::Timestamp {
     prost_types::Timestamp {
@@ -114,6 +205,8 @@ pub(crate) struct ProtoSchema {
 
 const TIMESTAMP_FILE: &str = "google/protobuf/timestamp.proto";
 const TIMESTAMP_TYPE: &str = ".google.protobuf.Timestamp";
+const DURATION_FILE: &str = "google/protobuf/duration.proto";
+const DURATION_TYPE: &str = ".google.protobuf.Duration";
 
 fn field(name: &str, number: i32, ty: Type, type_name: Option<&str>) -> FieldDescriptorProto {
     FieldDescriptorProto {
@@ -144,13 +237,31 @@ fn json_name(name: &str) -> String {
     out
 }
 
-/// `google/protobuf/timestamp.proto` as protoc describes it (the message, without options).
-fn timestamp_file() -> FileDescriptorProto {
+/// A repeated field of messages.
+fn repeated(name: &str, number: i32, type_name: &str) -> FieldDescriptorProto {
+    FieldDescriptorProto {
+        label: Some(Label::Repeated as i32),
+        ..field(name, number, Type::Message, Some(type_name))
+    }
+}
+
+/// A message of `fields`.
+fn message(name: &str, fields: Vec<FieldDescriptorProto>) -> DescriptorProto {
+    DescriptorProto {
+        name: Some(name.into()),
+        field: fields,
+        ..Default::default()
+    }
+}
+
+/// `google/protobuf/timestamp.proto` or `duration.proto` as protoc describes them (the
+/// message, without options): both are seconds and nanoseconds.
+fn seconds_nanos_file(file: &str, name: &str) -> FileDescriptorProto {
     FileDescriptorProto {
-        name: Some(TIMESTAMP_FILE.into()),
+        name: Some(file.into()),
         package: Some("google.protobuf".into()),
         message_type: vec![DescriptorProto {
-            name: Some("Timestamp".into()),
+            name: Some(name.into()),
             field: vec![
                 field("seconds", 1, Type::Int64, None),
                 field("nanos", 2, Type::Int32, None),
@@ -162,15 +273,17 @@ fn timestamp_file() -> FileDescriptorProto {
     }
 }
 
-fn foxglove_file(file: &str, message: DescriptorProto) -> FileDescriptorSet {
+/// A `foxglove` file whose first message is the schema's; the others are the types it uses.
+fn foxglove_file(file: &str, messages: Vec<DescriptorProto>) -> FileDescriptorSet {
     FileDescriptorSet {
         file: vec![
-            timestamp_file(),
+            seconds_nanos_file(TIMESTAMP_FILE, "Timestamp"),
+            seconds_nanos_file(DURATION_FILE, "Duration"),
             FileDescriptorProto {
                 name: Some(file.into()),
                 package: Some("foxglove".into()),
-                dependency: vec![TIMESTAMP_FILE.into()],
-                message_type: vec![message],
+                dependency: vec![TIMESTAMP_FILE.into(), DURATION_FILE.into()],
+                message_type: messages,
                 syntax: Some("proto3".into()),
                 ..Default::default()
             },
@@ -194,7 +307,7 @@ pub(crate) fn raw_image_schema() -> ProtoSchema {
     };
     ProtoSchema {
         name: "foxglove.RawImage",
-        descriptor_set: foxglove_file("foxglove/RawImage.proto", message).encode_to_vec(),
+        descriptor_set: foxglove_file("foxglove/RawImage.proto", vec![message]).encode_to_vec(),
     }
 }
 
@@ -211,7 +324,8 @@ pub(crate) fn compressed_image_schema() -> ProtoSchema {
     };
     ProtoSchema {
         name: "foxglove.CompressedImage",
-        descriptor_set: foxglove_file("foxglove/CompressedImage.proto", message).encode_to_vec(),
+        descriptor_set: foxglove_file("foxglove/CompressedImage.proto", vec![message])
+            .encode_to_vec(),
     }
 }
 
@@ -251,7 +365,87 @@ pub(crate) fn log_schema() -> ProtoSchema {
     };
     ProtoSchema {
         name: "foxglove.Log",
-        descriptor_set: foxglove_file("foxglove/Log.proto", message).encode_to_vec(),
+        descriptor_set: foxglove_file("foxglove/Log.proto", vec![message]).encode_to_vec(),
+    }
+}
+
+pub(crate) fn scene_update_schema() -> ProtoSchema {
+    let doubles = |names: &[&str]| {
+        names
+            .iter()
+            .zip(1..)
+            .map(|(name, number)| field(name, number, Type::Double, None))
+            .collect()
+    };
+    // Every field of SceneUpdate and SceneEntity is declared, so readers that walk each
+    // primitive list find an empty one; the primitives this project never draws are declared
+    // without fields, which decodes the same (none are written).
+    let unused = [
+        "SceneEntityDeletion",
+        "KeyValuePair",
+        "ArrowPrimitive",
+        "SpherePrimitive",
+        "CylinderPrimitive",
+        "LinePrimitive",
+        "TriangleListPrimitive",
+        "TextPrimitive",
+        "ModelPrimitive",
+    ];
+    let mut messages = vec![
+        message(
+            "SceneUpdate",
+            vec![
+                repeated("deletions", 1, ".foxglove.SceneEntityDeletion"),
+                repeated("entities", 2, ".foxglove.SceneEntity"),
+            ],
+        ),
+        message(
+            "SceneEntity",
+            vec![
+                field("timestamp", 1, Type::Message, Some(TIMESTAMP_TYPE)),
+                field("frame_id", 2, Type::String, None),
+                field("id", 3, Type::String, None),
+                field("lifetime", 4, Type::Message, Some(DURATION_TYPE)),
+                field("frame_locked", 5, Type::Bool, None),
+                repeated("metadata", 6, ".foxglove.KeyValuePair"),
+                repeated("arrows", 7, ".foxglove.ArrowPrimitive"),
+                repeated("cubes", 8, ".foxglove.CubePrimitive"),
+                repeated("spheres", 9, ".foxglove.SpherePrimitive"),
+                repeated("cylinders", 10, ".foxglove.CylinderPrimitive"),
+                repeated("lines", 11, ".foxglove.LinePrimitive"),
+                repeated("triangles", 12, ".foxglove.TriangleListPrimitive"),
+                repeated("texts", 13, ".foxglove.TextPrimitive"),
+                repeated("models", 14, ".foxglove.ModelPrimitive"),
+            ],
+        ),
+        message(
+            "CubePrimitive",
+            vec![
+                field("pose", 1, Type::Message, Some(".foxglove.Pose")),
+                field("size", 2, Type::Message, Some(".foxglove.Vector3")),
+                field("color", 3, Type::Message, Some(".foxglove.Color")),
+            ],
+        ),
+        message(
+            "Pose",
+            vec![
+                field("position", 1, Type::Message, Some(".foxglove.Vector3")),
+                field(
+                    "orientation",
+                    2,
+                    Type::Message,
+                    Some(".foxglove.Quaternion"),
+                ),
+            ],
+        ),
+        message("Vector3", doubles(&["x", "y", "z"])),
+        message("Quaternion", doubles(&["x", "y", "z", "w"])),
+        message("Color", doubles(&["r", "g", "b", "a"])),
+    ];
+    messages.extend(unused.iter().map(|name| message(name, Vec::new())));
+    ProtoSchema {
+        name: "foxglove.SceneUpdate",
+        descriptor_set: foxglove_file("foxglove/SceneUpdate.proto", messages).encode_to_vec(),
     }
 }
 
@@ -296,6 +490,8 @@ mod tests {
         );
         assert_eq!(fields(&compressed_image_schema()).len(), 4);
         assert_eq!(fields(&log_schema()).len(), 6);
+        let scene = fields(&scene_update_schema());
+        assert_eq!(scene[1].0, "entities");
         assert_eq!(json_name("frame_id"), "frameId");
     }
 

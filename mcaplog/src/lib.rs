@@ -2,10 +2,10 @@
 //! file into `logs/<run-id>/`, and this crate writes and reads those files.
 //!
 //! - Writing ([`RunLog`]): metadata records (the resolved config, the process), our own metrics
-//!   as JSON messages with a `jsonschema` schema, images as `foxglove.RawImage` or
-//!   `foxglove.CompressedImage` and log lines as `foxglove.Log`, both in protobuf encoding with
-//!   the `FileDescriptorSet` as schema, so Foxglove, Rerun and the generic `mcap` readers decode
-//!   everything. Chunks are zstd-compressed, at most [`Options::chunk_size`] bytes before
+//!   as JSON messages with a `jsonschema` schema; images as `foxglove.RawImage` or
+//!   `foxglove.CompressedImage`, scenes as `foxglove.SceneUpdate` and log lines as
+//!   `foxglove.Log`, all in protobuf encoding with the `FileDescriptorSet` as schema, so
+//!   Foxglove, Rerun and the generic `mcap` readers decode everything. Chunks are zstd-compressed, at most [`Options::chunk_size`] bytes before
 //!   compression, and a chunk is closed and written at the latest [`Options::flush_interval`]
 //!   (one second) after its first message: a process killed with SIGKILL loses at most its
 //!   last second of log.
@@ -20,8 +20,11 @@ mod foxglove;
 mod read;
 mod write;
 
-pub use foxglove::{CompressedImage, Log, LogLevel, RawImage, timestamp};
-pub use read::{ChannelSummary, FileSummary, json_messages, read_summary, recover};
+pub use foxglove::{
+    Color, CompressedImage, CubePrimitive, Log, LogLevel, Pose, Quaternion, RawImage, SceneEntity,
+    SceneUpdate, Vector3, timestamp,
+};
+pub use read::{ChannelSummary, FileSummary, json_messages, proto_messages, read_summary, recover};
 pub use write::{Options, RunLog};
 
 use std::path::PathBuf;

@@ -193,21 +193,45 @@ pub fn recover(input: impl AsRef<Path>, output: impl AsRef<Path>) -> Result<File
 /// naming the file and the topic.
 pub fn json_messages(path: impl AsRef<Path>, topic: &str) -> Result<Vec<serde_json::Value>> {
     let path = path.as_ref();
+    let messages = topic_messages(path, topic, "json", |data| {
+        serde_json::from_slice(data).map_err(|e| format!("a message is not JSON: {e}"))
+    })?;
+    Ok(messages.into_iter().map(|(_, value)| value).collect())
+}
+
+/// Every protobuf message on `topic` (e.g. a `foxglove.RawImage`), decoded as `M`, with its
+/// log time, in file order; empty when the file has no such topic.
+pub fn proto_messages<M: prost::Message + Default>(
+    path: impl AsRef<Path>,
+    topic: &str,
+) -> Result<Vec<(u64, M)>> {
+    topic_messages(path.as_ref(), topic, "protobuf", |data| {
+        M::decode(data).map_err(|e| format!("a message does not decode: {e}"))
+    })
+}
+
+/// The messages on `topic` in `encoding`, decoded, with their log times.
+fn topic_messages<T>(
+    path: &Path,
+    topic: &str,
+    encoding: &str,
+    decode: impl Fn(&[u8]) -> Result<T, String>,
+) -> Result<Vec<(u64, T)>> {
     let (mut file, _) = open_mcap(path)?;
     let mut channels: HashMap<u16, bool> = HashMap::new();
     let mut values = Vec::new();
     scan(&mut file, path, |record| {
         match record {
             Record::Channel(c) => {
-                channels.insert(c.id, c.topic == topic && c.message_encoding == "json");
+                channels.insert(c.id, c.topic == topic && c.message_encoding == encoding);
             }
             Record::Message { header, data } if channels.get(&header.channel_id) == Some(&true) => {
-                let value = serde_json::from_slice(&data).map_err(|e| Error::Topic {
+                let value = decode(&data).map_err(|reason| Error::Topic {
                     path: path.to_path_buf(),
                     topic: topic.to_string(),
-                    reason: format!("a message is not JSON: {e}"),
+                    reason,
                 })?;
-                values.push(value);
+                values.push((header.log_time, value));
             }
             _ => {}
         }

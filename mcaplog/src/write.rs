@@ -49,6 +49,7 @@ enum Kind {
     RawImage,
     CompressedImage,
     Log,
+    SceneUpdate,
 }
 
 impl Kind {
@@ -58,6 +59,7 @@ impl Kind {
             Kind::RawImage => "foxglove.RawImage",
             Kind::CompressedImage => "foxglove.CompressedImage",
             Kind::Log => "foxglove.Log",
+            Kind::SceneUpdate => "foxglove.SceneUpdate",
         }
     }
 
@@ -67,6 +69,7 @@ impl Kind {
             Kind::RawImage => Some(foxglove::raw_image_schema()),
             Kind::CompressedImage => Some(foxglove::compressed_image_schema()),
             Kind::Log => Some(foxglove::log_schema()),
+            Kind::SceneUpdate => Some(foxglove::scene_update_schema()),
         }
     }
 }
@@ -90,6 +93,8 @@ struct State {
 
 struct Shared {
     path: PathBuf,
+    /// False for a [`RunLog::disabled`] log, which takes every call and writes nothing.
+    enabled: bool,
     flush_interval: Option<Duration>,
     state: Mutex<State>,
 }
@@ -144,6 +149,7 @@ impl RunLog {
             })?;
         let shared = Arc::new(Shared {
             path,
+            enabled: true,
             flush_interval: options.flush_interval,
             state: Mutex::new(State {
                 writer: Some(writer),
@@ -171,7 +177,33 @@ impl RunLog {
         Ok(log)
     }
 
-    /// The file being written.
+    /// A log that takes every call and writes nothing (no file, no encoding): for runs with
+    /// logging switched off, and for measuring what logging costs.
+    pub fn disabled(process: &str) -> RunLog {
+        RunLog {
+            shared: Arc::new(Shared {
+                path: PathBuf::new(),
+                enabled: false,
+                flush_interval: None,
+                state: Mutex::new(State {
+                    writer: None,
+                    failure: None,
+                    topics: HashMap::new(),
+                    proto_schemas: HashMap::new(),
+                    oldest_unflushed: None,
+                }),
+            }),
+            process: process.to_string(),
+            flusher: None,
+        }
+    }
+
+    /// Whether this log writes a file (false for [`RunLog::disabled`]).
+    pub fn enabled(&self) -> bool {
+        self.shared.enabled
+    }
+
+    /// The file being written (empty for a disabled log).
     pub fn path(&self) -> &Path {
         &self.shared.path
     }
@@ -184,6 +216,9 @@ impl RunLog {
     /// Writes a metadata record (e.g. `"config"` with the resolved configuration, flattened to
     /// dotted keys) and flushes, so it survives a crash right after.
     pub fn metadata(&self, name: &str, values: &BTreeMap<String, String>) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let mut state = self.shared.lock();
         let record = Metadata {
             name: name.to_string(),
@@ -201,6 +236,9 @@ impl RunLog {
     /// `schema_name`), before its first message. Topics never declared get a permissive schema
     /// `{"type": "object"}` titled with the topic; generic readers decode either.
     pub fn json_schema(&self, topic: &str, schema_name: &str, schema: &str) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let path = &self.shared.path;
         if let Err(e) = serde_json::from_str::<serde_json::Value>(schema) {
             return Err(topic_err(
@@ -233,6 +271,9 @@ impl RunLog {
         time_ns: u64,
         value: &T,
     ) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let path = &self.shared.path;
         let data = serde_json::to_vec(value)
             .map_err(|e| topic_err(path, topic, format!("cannot encode as JSON: {e}")))?;
@@ -259,6 +300,9 @@ impl RunLog {
         encoding: &str,
         data: &[u8],
     ) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let path = &self.shared.path;
         let bytes_per_pixel = match encoding {
             "mono8" | "8UC1" => 1,
@@ -313,6 +357,9 @@ impl RunLog {
         format: &str,
         data: &[u8],
     ) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let message = foxglove::CompressedImage {
             timestamp: Some(foxglove::timestamp(timestamp_ns)),
             frame_id: String::new(),
@@ -327,8 +374,29 @@ impl RunLog {
         )
     }
 
+    /// Logs a 3D scene as `foxglove.SceneUpdate` at `timestamp_ns`.
+    pub fn scene_update(
+        &self,
+        topic: &str,
+        timestamp_ns: u64,
+        update: &foxglove::SceneUpdate,
+    ) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
+        self.write(
+            topic,
+            Kind::SceneUpdate,
+            timestamp_ns,
+            &update.encode_to_vec(),
+        )
+    }
+
     /// Logs a line as `foxglove.Log` on [`LOG_TOPIC`], named with the process, timestamped now.
     pub fn log_line(&self, level: LogLevel, message: &str) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let time_ns = now_ns();
         let line = foxglove::Log {
             timestamp: Some(foxglove::timestamp(time_ns)),
@@ -343,12 +411,18 @@ impl RunLog {
 
     /// Closes the open chunk and hands everything to the operating system now.
     pub fn flush(&self) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         self.shared.lock().flush(&self.shared.path)
     }
 
     /// Flushes if the oldest unwritten message is older than the flush interval. Every write
     /// does this, and so does the background thread; a caller never needs to.
     pub fn flush_if_due(&self) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         let interval = self.shared.flush_interval;
         self.shared
             .lock()
@@ -361,6 +435,9 @@ impl RunLog {
     }
 
     fn close(&mut self) -> Result<()> {
+        if !self.enabled() {
+            return Ok(());
+        }
         if let Some((stop, thread)) = self.flusher.take() {
             drop(stop);
             let _ = thread.join();

@@ -40,6 +40,11 @@ with open(sys.argv[1], "rb") as f:
                 assert m.format == "png" and len(m.data) > 0
             elif schema.name == "foxglove.Log":
                 assert m.message and m.name and m.level in (2, 3), m
+            elif schema.name == "foxglove.SceneUpdate":
+                assert len(m.entities) > 0 and len(m.deletions) == 0, m
+                for e in m.entities:
+                    assert e.id and e.frame_id and len(e.arrows) == 0, e
+                    assert all(c.size.x > 0 and c.color.a > 0 for c in e.cubes), e
             else:
                 raise AssertionError("unexpected schema " + schema.name)
         elif channel.message_encoding == "json":

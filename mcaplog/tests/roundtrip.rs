@@ -90,6 +90,37 @@ fn messages_decode_with_the_mcap_crate() {
 }
 
 #[test]
+fn protobuf_messages_read_back_as_written_with_their_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("actor-0.mcap");
+    let log = RunLog::create_with(&path, "tester", manual_flush()).unwrap();
+    for k in 0..3 {
+        log.scene_update(SCENE, 1_000 + k, &scene(k, 1_000 + k))
+            .unwrap();
+    }
+    log.finish().unwrap();
+    let scenes = mcaplog::proto_messages::<mcaplog::SceneUpdate>(&path, SCENE).unwrap();
+    let expected: Vec<_> = (0..3).map(|k| (1_000 + k, scene(k, 1_000 + k))).collect();
+    assert_eq!(scenes, expected);
+    assert!(
+        mcaplog::proto_messages::<mcaplog::RawImage>(&path, HEIGHTMAP)
+            .unwrap()
+            .is_empty()
+    );
+}
+
+#[test]
+fn a_disabled_log_takes_everything_and_writes_nothing() {
+    let log = RunLog::disabled("tester");
+    assert!(!log.enabled());
+    write_batch(&log, 0);
+    log.metadata("config", &config()).unwrap();
+    log.flush().unwrap();
+    assert_eq!(log.path(), std::path::Path::new(""));
+    log.finish().unwrap();
+}
+
+#[test]
 fn sequences_count_up_per_channel() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("buffer.mcap");

@@ -102,6 +102,18 @@ impl ShapeKind {
         }
     }
 
+    /// The box around the shape in its body frame: its lowest and highest corner.
+    pub fn bounds(self) -> (Vector, Vector) {
+        let points = self.parts().iter().flat_map(|p| p.vertices.iter());
+        points.fold(
+            (
+                Vector::splat(f32::INFINITY),
+                Vector::splat(f32::NEG_INFINITY),
+            ),
+            |(lo, hi), &v| (lo.min(v), hi.max(v)),
+        )
+    }
+
     /// The shape's convex parts in its body frame (built once, shared).
     pub fn parts(self) -> &'static [ConvexPart] {
         static PARTS: OnceLock<Vec<Vec<ConvexPart>>> = OnceLock::new();

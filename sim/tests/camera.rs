@@ -263,3 +263,20 @@ fn heightmaps_round_trip_through_serde_and_refuse_a_wrong_size() {
         "{error}"
     );
 }
+
+#[test]
+fn shape_bounds_hold_every_part_and_match_the_catalogue_sizes() {
+    let (lo, hi) = ShapeKind::Cube.bounds();
+    assert!((hi - lo - Vector::splat(0.05)).abs().max_element() < 1e-4);
+    let (lo, hi) = ShapeKind::TallBlock.bounds();
+    let size = hi - lo;
+    assert!((size.max_element() - 0.10).abs() < 1e-3, "{size:?}");
+    for kind in ShapeKind::ALL {
+        let (lo, hi) = kind.bounds();
+        for part in kind.parts() {
+            for v in &part.vertices {
+                assert!(v.cmpge(lo).all() && v.cmple(hi).all(), "{kind:?}");
+            }
+        }
+    }
+}

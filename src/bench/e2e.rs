@@ -3,6 +3,7 @@
 //! actor's actions over its own acting time, so process start-up is left out) and the
 //! learner's updates per second, read from the runs' reports.
 
+use std::path::Path;
 use std::process::Command;
 
 use anyhow::{Context, Result, bail};
@@ -30,33 +31,20 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
     let mut figures = Map::new();
     figures.insert("episodes_per_run".into(), args.episodes.into());
     for actors in [1u32, 2, 4] {
-        let run_id = format!("bench-e2e-{actors}-{}", std::process::id());
-        let output = Command::new(std::env::current_exe()?)
-            .args(["train", "--config", &args.config])
-            .args(["--actors", &actors.to_string()])
-            .args(["--episodes", &args.episodes.to_string()])
-            .args(["--run-id", &run_id])
-            .arg("--logs")
-            .arg(logs.path())
-            .output()
-            .context("running train")?;
-        if !output.status.success() {
-            bail!(
-                "train with {actors} actors failed:\n{}",
-                String::from_utf8_lossy(&output.stderr)
-            );
-        }
-        let summary: Value = read_json(&logs.path().join(&run_id).join("summary.json"))?;
-        let actions_per_s: f64 = summary["actors_reports"]
-            .as_array()
-            .into_iter()
-            .flatten()
-            .map(|r| r["actions"].as_f64().unwrap_or(0.0) / r["acting_s"].as_f64().unwrap_or(1.0))
-            .sum();
+        let summary = train_run(
+            Path::new(&args.config),
+            actors,
+            args.episodes,
+            logs.path(),
+            &format!("bench-e2e-{actors}"),
+        )?;
         let learner = &summary["learner"];
         let updates_per_s = learner["session_updates"].as_f64().unwrap_or(0.0)
             / learner["training_s"].as_f64().unwrap_or(1.0).max(1e-9);
-        figures.insert(format!("actions_per_s_{actors}"), round(actions_per_s));
+        figures.insert(
+            format!("actions_per_s_{actors}"),
+            round(actions_per_s(&summary)),
+        );
         figures.insert(
             format!("learner_updates_per_s_{actors}"),
             round(updates_per_s),
@@ -65,6 +53,47 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
     print_figures(&Value::Object(figures), args.json)
 }
 
-fn round(x: f64) -> Value {
+/// Runs `pushgrasp train` (processes over shared memory) into `logs/<name>-<pid>` and returns
+/// its summary.
+pub(super) fn train_run(
+    config: &Path,
+    actors: u32,
+    episodes: u64,
+    logs: &Path,
+    name: &str,
+) -> Result<Value> {
+    let run_id = format!("{name}-{}", std::process::id());
+    let output = Command::new(std::env::current_exe()?)
+        .arg("train")
+        .arg("--config")
+        .arg(config)
+        .args(["--actors", &actors.to_string()])
+        .args(["--episodes", &episodes.to_string()])
+        .args(["--run-id", &run_id])
+        .arg("--logs")
+        .arg(logs)
+        .output()
+        .context("running train")?;
+    if !output.status.success() {
+        bail!(
+            "train with {actors} actors failed:\n{}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    read_json(&logs.join(&run_id).join("summary.json"))
+}
+
+/// Actions per second summed over a run's actors, each over its own acting time (process
+/// start-up left out).
+pub(super) fn actions_per_s(summary: &Value) -> f64 {
+    summary["actors_reports"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|r| r["actions"].as_f64().unwrap_or(0.0) / r["acting_s"].as_f64().unwrap_or(1.0))
+        .sum()
+}
+
+pub(super) fn round(x: f64) -> Value {
     ((x * 100.0).round() / 100.0).into()
 }

@@ -14,6 +14,7 @@ use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig
 use crate::mask_shape::MaskShape;
 
 mod e2e;
+mod logging;
 mod replay;
 mod transport;
 
@@ -30,6 +31,9 @@ pub enum BenchCommand {
     /// The whole system: actions/s of real training runs with 1, 2 and 4 actor processes,
     /// and the learner's updates/s.
     E2e(e2e::E2eBenchArgs),
+    /// The MCAP logs: actor actions/s with logging on and off (same invocation), and the
+    /// size of a run's logs at 224 x 224 per 1000 episodes.
+    Logging(logging::LoggingBenchArgs),
     /// The transport: 0.5 MB steps from 1, 2 and 4 processes to one subscriber through
     /// iceoryx2 shared memory, beside Unix sockets and memcpy; iceoryx2's latency.
     Transport(transport::TransportBenchArgs),
@@ -86,6 +90,7 @@ pub fn run(command: BenchCommand) -> Result<()> {
         BenchCommand::Learner(args) => bench_learner(&args),
         BenchCommand::Buffer(args) => replay::bench_buffer(&args),
         BenchCommand::E2e(args) => e2e::bench_e2e(&args),
+        BenchCommand::Logging(args) => logging::bench_logging(&args),
         BenchCommand::Transport(args) => transport::bench_transport(&args),
     }
 }

@@ -23,7 +23,8 @@ use wire::{
 
 use super::config::RunConfig;
 use super::record::{
-    ACTOR_COLOUR, ACTOR_EPISODE, ACTOR_GRASP_Q, ACTOR_HEIGHT, ACTOR_STEP, EpisodeRecord, StepRecord,
+    ACTOR_COLOUR, ACTOR_EPISODE, ACTOR_GRASP_Q, ACTOR_HEIGHT, ACTOR_PUSH_Q, ACTOR_SCENE,
+    ACTOR_STEP, EpisodeRecord, StepRecord,
 };
 use super::{Lifeline, stop_requested};
 
@@ -75,6 +76,8 @@ struct Pending {
     ends: Option<EpisodeEnd>,
     /// The scene the episode played on.
     scene_seed: u64,
+    /// When the pictures of this step were logged, if they were.
+    pictures_ns: Option<u64>,
 }
 
 struct Shipper<'a> {
@@ -153,6 +156,7 @@ impl Shipper<'_> {
             grasped: t.grasped,
             priority: step.priority,
             weights_version: self.weights_version,
+            pictures_ns: pending.pictures_ns,
         };
         self.outbox.send(&Message::Step(step))?;
         self.steps_sent += 1;
@@ -223,7 +227,7 @@ impl Policy {
         pushes_so_far: usize,
         epsilon: f32,
         rng: &mut ChaCha8Rng,
-    ) -> Result<(Decision, QMaps)> {
+    ) -> Result<(Decision, QMaps, Option<QMaps>)> {
         let input = NetInput::encode(obs, goal);
         let grasp = self
             .nets
@@ -244,7 +248,7 @@ impl Policy {
             pushes_so_far,
         };
         let decision = actor::choose(&config.policy, config.mode(), &policy_input, epsilon, rng)?;
-        Ok((decision, grasp))
+        Ok((decision, grasp, push))
     }
 }
 
@@ -319,12 +323,12 @@ pub fn run(
         let mut step = 0u32;
         loop {
             let epsilon = config.epsilon(id.index, report.actions);
-            let (decision, grasp_maps) =
+            let (decision, grasp_maps, push_maps) =
                 policy.decide(config, &obs, goal, step as usize, epsilon, &mut rng)?;
             let every = config.logging.image_every;
-            if every > 0 && step == 0 && report.episodes.is_multiple_of(every) {
-                log_images(log, &obs, &grasp_maps)?;
-            }
+            let pictures_ns = (every > 0 && report.episodes.is_multiple_of(every))
+                .then(|| log_pictures(log, &tabletop, &obs, &grasp_maps, push_maps.as_ref()))
+                .transpose()?;
             if let Some(p) = pending.take() {
                 shipper.ship(p, Some(&decision))?;
             }
@@ -349,6 +353,7 @@ pub fn run(
                     decision,
                     ends: None,
                     scene_seed,
+                    pictures_ns,
                 });
                 // Stop between actions, not only between episodes: a push chain can be long.
                 if lifeline.lost() || stop_requested(&mut control, Role::Actor)? {
@@ -376,6 +381,7 @@ pub fn run(
                 decision,
                 push_changed: None,
                 scene_seed,
+                pictures_ns,
             });
             report.episodes += 1;
             report.goal_grasps += u64::from(goal_grasped);
@@ -397,28 +403,84 @@ pub fn run(
     Ok(report)
 }
 
-/// What the actor saw: colour, height (tenths of a millimetre) and the best grasp Q over the
-/// rotations (hundredths, so 0..2.55), as images Foxglove shows as they are.
-fn log_images(log: &RunLog, obs: &Heightmaps, grasp: &QMaps) -> Result<()> {
-    let side = obs.side();
+/// What the actor saw and the scene it acted on, all at one time, which is returned: colour,
+/// height (tenths of a millimetre) and the best grasp and push Q over the rotations
+/// (hundredths, so 0..2.55) as images Foxglove shows as they are, and the objects as boxes.
+fn log_pictures(
+    log: &RunLog,
+    tabletop: &Tabletop,
+    obs: &Heightmaps,
+    grasp: &QMaps,
+    push: Option<&QMaps>,
+) -> Result<u64> {
     let t = mcaplog::now_ns();
+    if !log.enabled() {
+        return Ok(t);
+    }
+    let side = obs.side() as u32;
     let colour: Vec<u8> = obs.colour.iter().flatten().copied().collect();
     let height: Vec<u8> = obs
         .height
         .iter()
         .flat_map(|h| ((h * 1e4).round().clamp(0.0, 65535.0) as u16).to_le_bytes())
         .collect();
-    let q: Vec<u8> = (0..side * side)
+    log.raw_image(ACTOR_COLOUR, t, side, side, "rgb8", &colour)?;
+    log.raw_image(ACTOR_HEIGHT, t, side, side, "mono16", &height)?;
+    log.raw_image(ACTOR_GRASP_Q, t, side, side, "mono8", &best_q(grasp))?;
+    if let Some(push) = push {
+        log.raw_image(ACTOR_PUSH_Q, t, side, side, "mono8", &best_q(push))?;
+    }
+    log.scene_update(ACTOR_SCENE, t, &scene(tabletop, t))?;
+    Ok(t)
+}
+
+/// The best Q over the rotations per pixel, in hundredths.
+fn best_q(maps: &QMaps) -> Vec<u8> {
+    let side = maps.side();
+    (0..side * side)
         .map(|i| {
-            let best = (0..grasp.rotations())
-                .map(|k| grasp.get(k, i / side, i % side))
+            let best = (0..maps.rotations())
+                .map(|k| maps.get(k, i / side, i % side))
                 .fold(f32::NEG_INFINITY, f32::max);
             (best * 100.0).round().clamp(0.0, 255.0) as u8
         })
+        .collect()
+}
+
+/// The objects on the table as boxes in the world frame, one entity per object id.
+fn scene(tabletop: &Tabletop, time_ns: u64) -> mcaplog::SceneUpdate {
+    let vector = |v: sim::rapier3d::prelude::Vector| mcaplog::Vector3 {
+        x: f64::from(v.x),
+        y: f64::from(v.y),
+        z: f64::from(v.z),
+    };
+    let entities = tabletop
+        .objects()
+        .map(|object| {
+            let (lo, hi) = object.kind.bounds();
+            let q = object.pose.rotation;
+            let [r, g, b] = object.colour.map(|c| f64::from(c) / 255.0);
+            mcaplog::SceneEntity {
+                timestamp: Some(mcaplog::timestamp(time_ns)),
+                frame_id: "world".into(),
+                id: format!("object-{}", object.id),
+                lifetime: None,
+                frame_locked: false,
+                cubes: vec![mcaplog::CubePrimitive {
+                    pose: Some(mcaplog::Pose {
+                        position: Some(vector(object.pose.transform_point((lo + hi) / 2.0))),
+                        orientation: Some(mcaplog::Quaternion {
+                            x: f64::from(q.x),
+                            y: f64::from(q.y),
+                            z: f64::from(q.z),
+                            w: f64::from(q.w),
+                        }),
+                    }),
+                    size: Some(vector(hi - lo)),
+                    color: Some(mcaplog::Color { r, g, b, a: 1.0 }),
+                }],
+            }
+        })
         .collect();
-    let side = side as u32;
-    log.raw_image(ACTOR_COLOUR, t, side, side, "rgb8", &colour)?;
-    log.raw_image(ACTOR_HEIGHT, t, side, side, "mono16", &height)?;
-    log.raw_image(ACTOR_GRASP_Q, t, side, side, "mono8", &q)?;
-    Ok(())
+    mcaplog::SceneUpdate { entities }
 }

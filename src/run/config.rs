@@ -52,14 +52,19 @@ pub struct RunConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LoggingConfig {
-    /// An actor logs what it saw (colour, height, grasp Q) at the start of every this many
-    /// episodes (0: never).
+    /// False: no role writes an MCAP log (reports and `summary.json` are still written).
+    pub enabled: bool,
+    /// An actor logs what it saw (colour, height, grasp and push Q, the scene) at every step
+    /// of every this many episodes (0: never).
     pub image_every: u64,
 }
 
 impl Default for LoggingConfig {
     fn default() -> Self {
-        Self { image_every: 10 }
+        Self {
+            enabled: true,
+            image_every: 10,
+        }
     }
 }
 

@@ -132,6 +132,9 @@ pub fn run_role(
 
 /// A process's MCAP log in the run directory, opened with the run's resolved config.
 fn open_log(dir: &Path, name: &str, config: &RunConfig) -> Result<RunLog> {
+    if !config.logging.enabled {
+        return Ok(RunLog::disabled(name));
+    }
     let log = RunLog::create(dir.join(format!("{name}.mcap")), name)?;
     let config = BTreeMap::from([("toml".to_string(), toml::to_string(config)?)]);
     log.metadata("config", &config)?;

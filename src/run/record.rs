@@ -7,11 +7,17 @@ use serde::{Deserialize, Serialize};
 pub const ACTOR_STEP: &str = "/actor/step";
 /// Every finished episode (actor).
 pub const ACTOR_EPISODE: &str = "/actor/episode";
-/// What the actor saw, every `logging.image_every` episodes: colour (rgb8), height (mono16,
-/// tenths of a millimetre) and the best grasp Q over the rotations (mono8, 0..2.55).
+/// What the actor saw at each step of every `logging.image_every`-th episode, all stamped
+/// with the step's `pictures_ns`: colour (rgb8), height (mono16, tenths of a millimetre), the
+/// best grasp and push Q over the rotations (mono8, hundredths: 0..2.55; push only where the
+/// stage pushes), and the objects as boxes (`foxglove.SceneUpdate`).
 pub const ACTOR_COLOUR: &str = "/actor/colour";
 pub const ACTOR_HEIGHT: &str = "/actor/height";
 pub const ACTOR_GRASP_Q: &str = "/actor/grasp_q";
+pub const ACTOR_PUSH_Q: &str = "/actor/push_q";
+pub const ACTOR_SCENE: &str = "/actor/scene";
+/// The picture topics, in the order an episode export names its files.
+pub const ACTOR_PICTURES: [&str; 4] = [ACTOR_COLOUR, ACTOR_HEIGHT, ACTOR_GRASP_Q, ACTOR_PUSH_Q];
 /// Every episode end the buffer took in.
 pub const BUFFER_EPISODE: &str = "/buffer/episode";
 /// The buffer's counters, a few times a second.
@@ -43,6 +49,8 @@ pub struct StepRecord {
     pub grasped: Option<u8>,
     pub priority: f64,
     pub weights_version: u64,
+    /// When this step's pictures were logged (their log time), if they were.
+    pub pictures_ns: Option<u64>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

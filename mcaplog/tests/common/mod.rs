@@ -5,17 +5,22 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use mcaplog::{LogLevel, Options, RunLog};
+use mcaplog::{
+    Color, CubePrimitive, LogLevel, Options, Pose, Quaternion, RunLog, SceneEntity, SceneUpdate,
+    Vector3,
+};
 
 pub const EPISODES: &str = "/episodes";
 pub const HEIGHTMAP: &str = "/heightmap";
 pub const SNAPSHOT: &str = "/snapshot";
+pub const SCENE: &str = "/scene";
 
 /// Messages of one batch on each topic.
-pub const PER_BATCH: [(&str, u64); 4] = [
+pub const PER_BATCH: [(&str, u64); 5] = [
     (EPISODES, 10),
     (HEIGHTMAP, 3),
     (SNAPSHOT, 1),
+    (SCENE, 1),
     (mcaplog::LOG_TOPIC, 2),
 ];
 
@@ -39,6 +44,46 @@ pub fn config() -> BTreeMap<String, String> {
         ("run.seed".to_string(), "7".to_string()),
         ("buffer.capacity".to_string(), "10000".to_string()),
     ])
+}
+
+/// A scene of `k + 1` boxes, one entity each.
+pub fn scene(k: u64, time_ns: u64) -> SceneUpdate {
+    let entities = (0..=k)
+        .map(|i| SceneEntity {
+            timestamp: Some(mcaplog::timestamp(time_ns)),
+            frame_id: "world".into(),
+            id: format!("object-{i}"),
+            lifetime: None,
+            frame_locked: false,
+            cubes: vec![CubePrimitive {
+                pose: Some(Pose {
+                    position: Some(Vector3 {
+                        x: 0.1 * i as f64,
+                        y: 0.0,
+                        z: 0.025,
+                    }),
+                    orientation: Some(Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: 0.0,
+                        w: 1.0,
+                    }),
+                }),
+                size: Some(Vector3 {
+                    x: 0.05,
+                    y: 0.05,
+                    z: 0.05,
+                }),
+                color: Some(Color {
+                    r: 0.3,
+                    g: 0.5,
+                    b: 0.7,
+                    a: 1.0,
+                }),
+            }],
+        })
+        .collect();
+    SceneUpdate { entities }
 }
 
 /// Options where only explicit flushes close chunks.
@@ -70,6 +115,8 @@ pub fn write_batch(log: &RunLog, k: u64) {
         &[0x89, b'P', b'N', b'G'],
     )
     .unwrap();
+    let t = mcaplog::now_ns();
+    log.scene_update(SCENE, t, &scene(k, t)).unwrap();
     log.log_line(LogLevel::Info, &format!("batch {k} done"))
         .unwrap();
     log.log_line(LogLevel::Warning, "a warning").unwrap();

@@ -1,0 +1,23 @@
+//! Training sweeps over a base training config: the sweep file ([`Sweep::load`]), its
+//! expansion into runs with resolved configs ([`Sweep::expand`]), the Slurm job-array script
+//! ([`job_array_script`]), Slurm's accounting output ([`parse_sacct`], [`parse_squeue`]) and
+//! statistics over seeds ([`mean_and_spread`], [`group_by_all_but`]).
+//!
+//! Everything here is pure: launching runs and showing progress belong to the binary.
+
+mod accounting;
+mod axis;
+mod error;
+mod expand;
+mod file;
+mod keys;
+mod slurm;
+mod stats;
+
+pub use accounting::{JobState, parse_sacct, parse_squeue};
+pub use axis::Axis;
+pub use error::SweepError;
+pub use expand::{RunPlan, dry_run_listing};
+pub use file::{Budget, Sweep};
+pub use slurm::{SlurmOptions, job_array_script};
+pub use stats::{group_by_all_but, mean_and_spread};

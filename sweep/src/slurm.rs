@@ -1,0 +1,203 @@
+//! The Slurm backend's job-array script: one array task per run.
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+use crate::error::SweepError;
+use crate::expand::RunPlan;
+use crate::file::Sweep;
+
+/// The `[slurm]` section of a sweep file; every field is optional.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SlurmOptions {
+    /// `--partition`.
+    pub partition: Option<String>,
+    /// `--time`, e.g. `"02:00:00"`.
+    pub time: Option<String>,
+    /// `--mem`, e.g. `"8G"`.
+    pub mem: Option<String>,
+    /// `--cpus-per-task`; by default the largest `actors` + 2 over the runs (the actors, the
+    /// learner and the buffer).
+    pub cpus_per_task: Option<u32>,
+    /// At most this many array tasks at once (`--array=...%N`).
+    pub max_parallel: Option<u32>,
+    /// More `#SBATCH` options, one per string, without the `#SBATCH` prefix,
+    /// e.g. `"--gres=gpu:1"`.
+    #[serde(default)]
+    pub extra: Vec<String>,
+}
+
+impl SlurmOptions {
+    /// Checks that every option fits on its `#SBATCH` line.
+    pub(crate) fn check(&self) -> Result<(), String> {
+        // sbatch splits these lines on whitespace and treats quotes, `\` and `#` specially.
+        for (name, value) in [
+            ("partition", &self.partition),
+            ("time", &self.time),
+            ("mem", &self.mem),
+        ] {
+            if let Some(value) = value
+                && (value.is_empty()
+                    || value
+                        .chars()
+                        .any(|c| c.is_whitespace() || matches!(c, '"' | '\'' | '\\' | '#')))
+            {
+                return Err(format!(
+                    "[slurm] {name} = {value:?} must be non-empty, without spaces, quotes, \
+                     `\\` or `#`"
+                ));
+            }
+        }
+        if self.cpus_per_task == Some(0) {
+            return Err("[slurm] cpus_per_task must be at least 1".to_string());
+        }
+        if self.max_parallel == Some(0) {
+            return Err("[slurm] max_parallel must be at least 1".to_string());
+        }
+        for line in &self.extra {
+            if line.trim().is_empty() || line.contains(['\n', '\r']) || line.starts_with('#') {
+                return Err(format!(
+                    "[slurm] extra line {line:?} must be one non-empty line of options, \
+                     without the `#SBATCH` prefix"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Renders the bash script `sbatch` takes to run `runs` as a job array.
+///
+/// Each array task runs `command` with `{run_id}` replaced by `"$RUN_ID"` (its run's id) and
+/// `{sweep_dir}` by `sweep_dir` quoted for bash. Task output goes to
+/// `<sweep_dir>/slurm/%A_%a.out`; Slurm does not create that directory, the caller must.
+/// `sweep_dir` should be absolute: tasks start in the directory `sbatch` was run from.
+pub fn job_array_script(
+    sweep: &Sweep,
+    runs: &[RunPlan],
+    sweep_dir: &Path,
+    command: &str,
+) -> Result<String, SweepError> {
+    let fail = |message: String| SweepError::Script(message);
+    if runs.is_empty() {
+        return Err(fail("no runs to submit".to_string()));
+    }
+    let dir = sweep_dir
+        .to_str()
+        .ok_or_else(|| fail(format!("sweep directory {sweep_dir:?} is not UTF-8")))?;
+    // No #SBATCH line can hold a line break, and a backslash in --output turns off
+    // Slurm's `%A`/`%a` substitution.
+    if dir.contains(['\n', '\r', '\\']) {
+        return Err(fail(format!(
+            "sweep directory {dir:?} contains a line break or a backslash, which its \
+             #SBATCH --output line cannot hold"
+        )));
+    }
+    let slurm = &sweep.slurm;
+    let cpus = match slurm.cpus_per_task {
+        Some(cpus) => i64::from(cpus),
+        None => default_cpus(runs)?,
+    };
+
+    let mut array = format!("0-{}", runs.len() - 1);
+    if let Some(max) = slurm.max_parallel {
+        array.push_str(&format!("%{max}"));
+    }
+    let mut options = vec![
+        format!("--job-name={}", sweep.name),
+        format!("--array={array}"),
+    ];
+    for (name, value) in [
+        ("partition", &slurm.partition),
+        ("time", &slurm.time),
+        ("mem", &slurm.mem),
+    ] {
+        if let Some(value) = value {
+            options.push(format!("--{name}={value}"));
+        }
+    }
+    options.push(format!("--cpus-per-task={cpus}"));
+    // `%` starts a filename pattern in --output, so one in the directory is doubled.
+    let output = format!("{}/slurm/%A_%a.out", dir.replace('%', "%%"));
+    options.push(format!("--output={}", sbatch_quote(&output)));
+    options.extend(slurm.extra.iter().cloned());
+
+    let mut script = String::from("#!/bin/bash\n");
+    for option in &options {
+        script.push_str(&format!("#SBATCH {option}\n"));
+    }
+    script.push_str(&format!(
+        "# Sweep {}: {} runs, one per array task.\n",
+        sweep.name,
+        runs.len()
+    ));
+    script.push_str("set -euo pipefail\n\nRUNS=(\n");
+    for run in runs {
+        script.push_str(&format!("  {}\n", bash_quote(&run.id)));
+    }
+    script.push_str(")\nRUN_ID=${RUNS[$SLURM_ARRAY_TASK_ID]}\n\n");
+    let command = command
+        .replace("{run_id}", "\"$RUN_ID\"")
+        .replace("{sweep_dir}", &bash_quote(dir));
+    script.push_str(&command);
+    script.push('\n');
+    Ok(script)
+}
+
+/// The largest `actors` + 2 over the runs' configs.
+fn default_cpus(runs: &[RunPlan]) -> Result<i64, SweepError> {
+    runs.iter()
+        .map(|run| {
+            run.config
+                .get("actors")
+                .and_then(toml::Value::as_integer)
+                .map(|actors| actors.saturating_add(2))
+                .ok_or_else(|| {
+                    SweepError::Script(format!(
+                        "run {} has no integer `actors` to size --cpus-per-task from; \
+                         set [slurm] cpus_per_task",
+                        run.id
+                    ))
+                })
+        })
+        .try_fold(1, |most, cpus| Ok(most.max(cpus?)))
+}
+
+/// `text` as one bash word: single-quoted, each embedded `'` written as `'\''`.
+fn bash_quote(text: &str) -> String {
+    format!("'{}'", text.replace('\'', r"'\''"))
+}
+
+/// `text` as one argument of an `#SBATCH` line. sbatch reads these lines itself, not bash:
+/// double quotes keep spaces together, and a backslash makes the next character literal,
+/// which older releases need even inside quotes for `#` (else a comment starts there).
+fn sbatch_quote(text: &str) -> String {
+    let mut quoted = String::from("\"");
+    for c in text.chars() {
+        if matches!(c, '\\' | '"' | '\'' | '#') {
+            quoted.push('\\');
+        }
+        quoted.push(c);
+    }
+    quoted.push('"');
+    quoted
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bash_quote_escapes_single_quotes() {
+        assert_eq!(bash_quote("plain"), "'plain'");
+        assert_eq!(bash_quote("it's here"), r"'it'\''s here'");
+    }
+
+    #[test]
+    fn sbatch_quote_escapes_what_sbatch_reads() {
+        assert_eq!(sbatch_quote("a b"), "\"a b\"");
+        assert_eq!(sbatch_quote(r##"it's "#1\"##), r##""it\'s \"\#1\\""##);
+    }
+}
