@@ -3,6 +3,7 @@
 
 mod bench;
 mod episode;
+mod eval;
 mod inspect;
 mod mask_shape;
 mod pictures;
@@ -38,6 +39,8 @@ enum Command {
     /// One role of a training run (started by `train`, not by hand).
     #[command(hide = true)]
     Role(run::RoleArgs),
+    /// Test a checkpoint the paper's way: completion, goal grasp success, motion number.
+    Eval(eval::EvalArgs),
     /// Read a run's MCAP logs: files, counts, the goal grasp success curve.
     Inspect(inspect::InspectArgs),
     /// Work on MCAP log files.
@@ -55,6 +58,7 @@ fn main() -> Result<()> {
         Command::TrainSingle(args) => single::run(&args),
         Command::Train(args) => run::train(&args),
         Command::Role(args) => run::role_process(&args),
+        Command::Eval(args) => eval::run(&args),
         Command::Inspect(args) => inspect::inspect(&args),
         Command::Logs(command) => inspect::logs(command),
         Command::Bench(command) => bench::run(command),

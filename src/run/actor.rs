@@ -6,17 +6,17 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
-use actor::{Decision, Mode, PolicyInput, QMaps, grasp_reward, push_reward};
+use actor::{Decision, QMaps, grasp_reward, push_reward};
+use agent::{Agent, Choice};
 use anyhow::{Context, Result};
 use buffer::Transition;
 use learner::label::{grasp_label, push_label};
 use mcaplog::RunLog;
-use qnet::{Geometry, NetInput, QNets};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
-use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
+use sim::{Camera, Heightmaps, Primitive, Tabletop};
 use wire::{
     EpisodeEnd, Inbox, Message, Origin, Outbox, Role, Status, Step, Topic, Transport, Weights,
 };
@@ -182,10 +182,9 @@ impl Shipper<'_> {
     }
 }
 
-/// The actor's nets and where new weights come from.
+/// The actor's agent and where new weights come from.
 struct Policy {
-    nets: QNets,
-    geometry: Geometry,
+    agent: Agent,
     weights: Inbox,
     version: u64,
 }
@@ -201,7 +200,8 @@ impl Policy {
                 }
             }
             if let Some(w) = newest {
-                self.nets = self
+                self.agent.nets = self
+                    .agent
                     .nets
                     .clone()
                     .load_bytes(&w.bytes)
@@ -217,38 +217,6 @@ impl Policy {
             }
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
-    }
-
-    fn decide(
-        &self,
-        config: &RunConfig,
-        obs: &Heightmaps,
-        goal: ObjectId,
-        pushes_so_far: usize,
-        epsilon: f32,
-        rng: &mut ChaCha8Rng,
-    ) -> Result<(Decision, QMaps, Option<QMaps>)> {
-        let input = NetInput::encode(obs, goal);
-        let grasp = self
-            .nets
-            .all_rotations(Primitive::Grasp, &input, &self.geometry)?;
-        let push = match config.mode() {
-            Mode::PushGrasp => Some(self.nets.all_rotations(
-                Primitive::Push,
-                &input,
-                &self.geometry,
-            )?),
-            Mode::GraspOnly => None,
-        };
-        let policy_input = PolicyInput {
-            obs,
-            goal,
-            grasp: &grasp,
-            push: push.as_ref(),
-            pushes_so_far,
-        };
-        let decision = actor::choose(&config.policy, config.mode(), &policy_input, epsilon, rng)?;
-        Ok((decision, grasp, push))
     }
 }
 
@@ -274,10 +242,13 @@ pub fn run(
         weights_version: 0,
         steps_sent: 0,
     };
-    let device = qnet::Backend::selected().device();
     let mut policy = Policy {
-        nets: QNets::new(&config.net, &device),
-        geometry: Geometry::new(config.side(), &config.net),
+        agent: Agent::new(
+            &config.net,
+            config.side(),
+            config.policy.clone(),
+            config.mode(),
+        ),
         weights: Inbox::open(transport, Topic::Weights)?,
         version: 0,
     };
@@ -323,11 +294,16 @@ pub fn run(
         let mut step = 0u32;
         loop {
             let epsilon = config.epsilon(id.index, report.actions);
-            let (decision, grasp_maps, push_maps) =
-                policy.decide(config, &obs, goal, step as usize, epsilon, &mut rng)?;
+            let Choice {
+                decision,
+                grasp,
+                push,
+            } = policy
+                .agent
+                .decide(&obs, goal, step as usize, epsilon, &mut rng)?;
             let every = config.logging.image_every;
             let pictures_ns = (every > 0 && report.episodes.is_multiple_of(every))
-                .then(|| log_pictures(log, &tabletop, &obs, &grasp_maps, push_maps.as_ref()))
+                .then(|| log_pictures(log, &tabletop, &obs, &grasp, push.as_ref()))
                 .transpose()?;
             if let Some(p) = pending.take() {
                 shipper.ship(p, Some(&decision))?;

@@ -1,0 +1,211 @@
+//! Test runs: on each case, `runs` runs of the greedy policy (no exploration, no learning,
+//! BatchNorm on its running statistics because the nets run on the plain backend), in
+//! parallel over the cores, each judged by [`crate::metrics`].
+//!
+//! The simulator is deterministic, so the runs of a designed arrangement would all be the
+//! same run: each run moves every object by a small seeded jitter (1 mm, 1 degree by default)
+//! before the scene settles, standing in for the run-to-run noise of the paper's simulator.
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use sim::{Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
+
+use crate::agent::{Agent, AgentError};
+use crate::metrics::{ActionRecord, CaseMetrics, RunRecord};
+
+/// How the test runs are made.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalConfig {
+    pub sim: SimConfig,
+    /// Runs per case (the paper: 30).
+    pub runs: usize,
+    /// Every run's scene and goal derive from this seed, the case and the run index.
+    pub seed: u64,
+    /// Largest shift of each arranged object in x and y (metres) ...
+    pub jitter_m: f32,
+    /// ... and about the vertical (radians).
+    pub jitter_rad: f32,
+    /// A run still undecided after this many actions counts as incomplete (a guard: the
+    /// policy's five-push limit and the ten failures already bound a run).
+    pub max_actions: usize,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self {
+            sim: SimConfig::default(),
+            runs: 30,
+            seed: 0,
+            jitter_m: 0.001,
+            jitter_rad: 1f32.to_radians(),
+            max_actions: 100,
+        }
+    }
+}
+
+/// A test case's scene.
+#[derive(Clone, Debug)]
+pub enum Scene {
+    /// A designed arrangement with its goal.
+    Arrangement(Arrangement),
+    /// `objects` dropped at random, a visible one drawn as the goal.
+    Random { objects: usize },
+}
+
+/// Why an evaluation stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("case {case}: {source}")]
+    Sim {
+        case: String,
+        #[source]
+        source: SimError,
+    },
+    #[error("case {case}: {source}")]
+    Agent {
+        case: String,
+        #[source]
+        source: AgentError,
+    },
+    #[error("case {case}: the arrangement names no goal object")]
+    NoGoal { case: String },
+    #[error("case {case}: the scene has no visible object to take as the goal")]
+    EmptyScene { case: String },
+}
+
+/// A case's runs and figures.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct CaseReport {
+    pub name: String,
+    pub metrics: CaseMetrics,
+    pub runs: Vec<RunRecord>,
+}
+
+/// Runs every case `config.runs` times with agents from `make_agent` (one per worker thread)
+/// and judges them. The result depends on the seed, not on the number of threads.
+pub fn evaluate(
+    make_agent: impl Fn() -> Agent + Sync,
+    cases: &[(String, Scene)],
+    config: &EvalConfig,
+) -> Result<Vec<CaseReport>, EvalError> {
+    let jobs: Vec<(usize, usize)> = (0..cases.len())
+        .flat_map(|c| (0..config.runs).map(move |r| (c, r)))
+        .collect();
+    let records: Vec<RunRecord> = jobs
+        .par_iter()
+        .map_init(&make_agent, |agent, &(c, r)| {
+            let (name, scene) = &cases[c];
+            test_run(agent, scene, config, run_seed(config.seed, c, r)).map_err(|e| e.in_case(name))
+        })
+        .collect::<Result<_, _>>()?;
+    let mut records = records.into_iter();
+    Ok(cases
+        .iter()
+        .map(|(name, _)| {
+            let runs: Vec<RunRecord> = records.by_ref().take(config.runs).collect();
+            let outcomes: Vec<_> = runs.iter().map(RunRecord::outcome).collect();
+            CaseReport {
+                name: name.clone(),
+                metrics: CaseMetrics::of(&outcomes),
+                runs,
+            }
+        })
+        .collect())
+}
+
+fn run_seed(seed: u64, case: usize, run: usize) -> u64 {
+    seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ ((case as u64) << 32) ^ run as u64
+}
+
+/// What went wrong in one run, before the case is named.
+enum RunError {
+    Sim(SimError),
+    Agent(AgentError),
+    NoGoal,
+    EmptyScene,
+}
+
+impl RunError {
+    fn in_case(self, case: &str) -> EvalError {
+        let case = case.to_string();
+        match self {
+            RunError::Sim(source) => EvalError::Sim { case, source },
+            RunError::Agent(source) => EvalError::Agent { case, source },
+            RunError::NoGoal => EvalError::NoGoal { case },
+            RunError::EmptyScene => EvalError::EmptyScene { case },
+        }
+    }
+}
+
+/// One test run: the scene, then greedy actions until the run is decided, the goal has left
+/// the table, or the action guard is reached.
+fn test_run(
+    agent: &Agent,
+    scene: &Scene,
+    config: &EvalConfig,
+    seed: u64,
+) -> Result<RunRecord, RunError> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let (mut tabletop, goal) = build(scene, config, &mut rng)?;
+    let camera = Camera::new(tabletop.grid());
+    let mut record = RunRecord {
+        goal,
+        actions: Vec::new(),
+    };
+    let mut pushes = 0;
+    while record.actions.len() < config.max_actions
+        && !record.outcome().decided
+        && tabletop.object(goal).is_some()
+    {
+        let obs = camera.render(&tabletop);
+        let choice = agent
+            .decide(&obs, goal, pushes, 0.0, &mut rng)
+            .map_err(RunError::Agent)?;
+        let action = choice.decision.action;
+        let outcome = tabletop.act(&action, &obs).map_err(RunError::Sim)?;
+        pushes = match action.primitive {
+            Primitive::Push => pushes + 1,
+            Primitive::Grasp => 0,
+        };
+        record.actions.push(ActionRecord {
+            primitive: action.primitive,
+            grasped: outcome.grasped,
+        });
+    }
+    Ok(record)
+}
+
+/// The run's tabletop, settled, and its goal.
+fn build(
+    scene: &Scene,
+    config: &EvalConfig,
+    rng: &mut ChaCha8Rng,
+) -> Result<(Tabletop, ObjectId), RunError> {
+    match scene {
+        Scene::Arrangement(arrangement) => {
+            let goal = arrangement.goal.ok_or(RunError::NoGoal)?;
+            let mut jittered = arrangement.clone();
+            for object in &mut jittered.objects {
+                let mut shift = |range: f32| rng.random_range(-range..=range);
+                object.position[0] += shift(config.jitter_m);
+                object.position[1] += shift(config.jitter_m);
+                object.euler_xyz[2] += shift(config.jitter_rad);
+            }
+            let mut tabletop =
+                Tabletop::from_arrangement(&config.sim, &jittered).map_err(RunError::Sim)?;
+            tabletop.settle();
+            Ok((tabletop, goal))
+        }
+        Scene::Random { objects } => {
+            let (tabletop, _) =
+                Tabletop::random(&config.sim, *objects, rng.random()).map_err(RunError::Sim)?;
+            let visible = Camera::new(tabletop.grid()).render(&tabletop).visible_ids();
+            let goal = *visible
+                .get(rng.random_range(0..visible.len().max(1)))
+                .ok_or(RunError::EmptyScene)?;
+            Ok((tabletop, goal))
+        }
+    }
+}

@@ -1,0 +1,12 @@
+//! The agent: the push and grasp Q-networks acting through the hierarchical policy
+//! ([`Agent`]), the same code for training actors and for evaluation, and the evaluation
+//! itself ([`evaluate`]): test runs on the paper's arrangements or on random scenes, scored
+//! with the paper's completion, goal grasp success and motion number.
+
+mod agent;
+pub mod evaluate;
+pub mod metrics;
+
+pub use agent::{Agent, AgentError, Choice};
+pub use evaluate::{EvalConfig, Scene, evaluate};
+pub use metrics::{ActionRecord, CaseMetrics, RunOutcome, RunRecord};

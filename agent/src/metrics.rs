@@ -1,0 +1,118 @@
+//! The paper's test metrics. A run is complete when the goal object is picked without 10
+//! consecutive failed attempts at grasping it; a grasp of another object is a failed attempt
+//! (it counts the goal only, unlike the original `evaluate.py`). Per case: completion is the
+//! share of complete runs; grasp success is goal grasps over grasp attempts, averaged over the
+//! complete runs; motion number is the actions of a complete run, averaged.
+
+use serde::{Deserialize, Serialize};
+use sim::{ObjectId, Primitive};
+
+/// Failed grasp attempts in a row that end a run incomplete.
+pub const MAX_FAILED_GRASPS: usize = 10;
+
+/// One action of a test run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ActionRecord {
+    pub primitive: Primitive,
+    /// For a grasp: the object it picked, if any.
+    pub grasped: Option<ObjectId>,
+}
+
+/// What happened in one test run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub goal: ObjectId,
+    pub actions: Vec<ActionRecord>,
+}
+
+/// A run judged by the paper's rules.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RunOutcome {
+    pub complete: bool,
+    /// Complete, or failed out: more actions would not change the outcome.
+    pub decided: bool,
+    /// Actions up to the goal grasp (or all of them for an incomplete run).
+    pub actions: usize,
+    pub grasp_attempts: usize,
+}
+
+impl RunRecord {
+    /// The run judged: actions after the goal grasp or after the 10th failure in a row do
+    /// not count.
+    pub fn outcome(&self) -> RunOutcome {
+        let mut failures_in_a_row = 0;
+        let mut grasp_attempts = 0;
+        for (i, action) in self.actions.iter().enumerate() {
+            if action.primitive != Primitive::Grasp {
+                continue;
+            }
+            grasp_attempts += 1;
+            if action.grasped == Some(self.goal) {
+                return RunOutcome {
+                    complete: true,
+                    decided: true,
+                    actions: i + 1,
+                    grasp_attempts,
+                };
+            }
+            failures_in_a_row += 1;
+            if failures_in_a_row == MAX_FAILED_GRASPS {
+                return RunOutcome {
+                    complete: false,
+                    decided: true,
+                    actions: i + 1,
+                    grasp_attempts,
+                };
+            }
+        }
+        RunOutcome {
+            complete: false,
+            decided: false,
+            actions: self.actions.len(),
+            grasp_attempts,
+        }
+    }
+}
+
+/// A test case's figures (fractions, not percentages). Grasp success and motion number are
+/// over the complete runs, so they are `None` when no run completed.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CaseMetrics {
+    pub runs: usize,
+    pub complete_runs: usize,
+    pub completion: f64,
+    pub grasp_success: Option<f64>,
+    pub motion_number: Option<f64>,
+}
+
+impl CaseMetrics {
+    pub fn of(outcomes: &[RunOutcome]) -> Self {
+        let complete: Vec<&RunOutcome> = outcomes.iter().filter(|o| o.complete).collect();
+        let mean = |f: &dyn Fn(&RunOutcome) -> f64| {
+            (!complete.is_empty())
+                .then(|| complete.iter().map(|o| f(o)).sum::<f64>() / complete.len() as f64)
+        };
+        CaseMetrics {
+            runs: outcomes.len(),
+            complete_runs: complete.len(),
+            completion: complete.len() as f64 / outcomes.len().max(1) as f64,
+            grasp_success: mean(&|o| 1.0 / o.grasp_attempts as f64),
+            motion_number: mean(&|o| o.actions as f64),
+        }
+    }
+
+    /// The mean of several cases' figures, as the paper averages its cases (a case with no
+    /// complete run leaves grasp success and motion number to the others).
+    pub fn average(cases: &[CaseMetrics]) -> Self {
+        let mean = |values: Vec<f64>| {
+            (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+        };
+        CaseMetrics {
+            runs: cases.iter().map(|c| c.runs).sum(),
+            complete_runs: cases.iter().map(|c| c.complete_runs).sum(),
+            completion: mean(cases.iter().map(|c| c.completion).collect()).unwrap_or(0.0),
+            grasp_success: mean(cases.iter().filter_map(|c| c.grasp_success).collect()),
+            motion_number: mean(cases.iter().filter_map(|c| c.motion_number).collect()),
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! The paper's metrics on hand-made test runs.
+
+use agent::metrics::MAX_FAILED_GRASPS;
+use agent::{ActionRecord, CaseMetrics, RunRecord};
+use sim::Primitive;
+
+const GOAL: u8 = 4;
+
+fn push() -> ActionRecord {
+    ActionRecord {
+        primitive: Primitive::Push,
+        grasped: None,
+    }
+}
+
+fn grasp(grasped: Option<u8>) -> ActionRecord {
+    ActionRecord {
+        primitive: Primitive::Grasp,
+        grasped,
+    }
+}
+
+fn run(actions: Vec<ActionRecord>) -> RunRecord {
+    RunRecord {
+        goal: GOAL,
+        actions,
+    }
+}
+
+#[test]
+fn pushes_then_the_goal_complete_a_run_counting_every_action() {
+    let outcome = run(vec![push(), push(), grasp(Some(GOAL))]).outcome();
+    assert!(outcome.complete && outcome.decided);
+    assert_eq!((outcome.actions, outcome.grasp_attempts), (3, 1));
+}
+
+#[test]
+fn another_object_grasped_is_a_failed_attempt_not_a_success() {
+    let outcome = run(vec![grasp(Some(2)), push(), grasp(None), grasp(Some(GOAL))]).outcome();
+    assert!(outcome.complete);
+    assert_eq!((outcome.actions, outcome.grasp_attempts), (4, 3));
+    let only_others = run(vec![grasp(Some(1)), grasp(Some(2)), grasp(Some(3))]).outcome();
+    assert!(!only_others.complete && !only_others.decided);
+}
+
+#[test]
+fn ten_failed_attempts_in_a_row_end_the_run_and_a_later_goal_grasp_does_not_count() {
+    let mut actions: Vec<ActionRecord> = (0..MAX_FAILED_GRASPS)
+        .flat_map(|i| [push(), grasp(if i % 2 == 0 { None } else { Some(1) })])
+        .collect();
+    let failed_at = actions.len();
+    actions.push(grasp(Some(GOAL)));
+    let outcome = run(actions).outcome();
+    assert!(!outcome.complete && outcome.decided);
+    assert_eq!(outcome.actions, failed_at);
+    assert_eq!(outcome.grasp_attempts, MAX_FAILED_GRASPS);
+
+    // Nine failures leave room for the goal.
+    let mut actions: Vec<ActionRecord> = (0..MAX_FAILED_GRASPS - 1).map(|_| grasp(None)).collect();
+    actions.push(grasp(Some(GOAL)));
+    assert!(run(actions).outcome().complete);
+}
+
+#[test]
+fn case_figures_average_over_complete_runs_only() {
+    let outcomes = [
+        run(vec![grasp(Some(GOAL))]).outcome(), // 1 action, 1/1
+        run(vec![push(), grasp(None), grasp(Some(GOAL))]).outcome(), // 3 actions, 1/2
+        run(vec![grasp(None); MAX_FAILED_GRASPS]).outcome(), // incomplete
+        run(vec![
+            push(),
+            grasp(Some(3)),
+            push(),
+            push(),
+            grasp(Some(GOAL)),
+        ])
+        .outcome(), // 5, 1/2
+    ];
+    let case = CaseMetrics::of(&outcomes);
+    assert_eq!((case.runs, case.complete_runs), (4, 3));
+    assert!((case.completion - 0.75).abs() < 1e-12);
+    assert!((case.grasp_success.unwrap() - (1.0 + 0.5 + 0.5) / 3.0).abs() < 1e-12);
+    assert!((case.motion_number.unwrap() - 3.0).abs() < 1e-12);
+
+    let none_complete = CaseMetrics::of(&outcomes[2..3]);
+    assert_eq!(none_complete.completion, 0.0);
+    assert_eq!(none_complete.grasp_success, None);
+    let mean = CaseMetrics::average(&[case, none_complete]);
+    assert!((mean.completion - 0.375).abs() < 1e-12);
+    assert_eq!(mean.grasp_success, case.grasp_success);
+    assert_eq!(mean.runs, 5);
+}

@@ -1,0 +1,195 @@
+//! `pushgrasp eval`: a checkpoint tested the paper's way: `--runs` greedy runs per case on
+//! the designed arrangements and/or random scenes, scored with completion, goal grasp success
+//! and motion number, per case and averaged, as a table like the paper's or as JSON.
+
+use std::path::{Path, PathBuf};
+
+use agent::{Agent, CaseMetrics, EvalConfig, Scene};
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use learner::Checkpoint;
+use learner::checkpoint::config_hash;
+use serde::Serialize;
+use sim::Arrangement;
+
+use crate::run::config::RunConfig;
+
+#[derive(Args)]
+pub struct EvalArgs {
+    /// A checkpoint directory (a run's `checkpoint/`).
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// The config the checkpoint was trained with (default: `config.toml` in the
+    /// checkpoint's parent, the run directory); it gives the nets' shape, the simulator and
+    /// the policy (Q*, pushes per grasp).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Arrangement files (our TOML, with a goal) or directories of them.
+    #[arg(long, num_args = 1..)]
+    arrangements: Vec<PathBuf>,
+    /// One more case: random scenes of this many objects (the paper: 30).
+    #[arg(long)]
+    random: Option<usize>,
+    /// Runs per case (the paper: 30).
+    #[arg(long, default_value_t = 30)]
+    runs: usize,
+    /// Scenes, jitter and goals derive from this seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Test the grasp net alone (the grasping-only baseline): no pushes.
+    #[arg(long)]
+    grasp_only: bool,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct CaseRow {
+    case: String,
+    #[serde(flatten)]
+    metrics: CaseMetrics,
+}
+
+#[derive(Serialize)]
+struct EvalReport {
+    checkpoint: String,
+    updates: u64,
+    runs_per_case: usize,
+    seed: u64,
+    mode: actor::Mode,
+    cases: Vec<CaseRow>,
+    average: CaseMetrics,
+}
+
+pub fn run(args: &EvalArgs) -> Result<()> {
+    let config_path = match &args.config {
+        Some(path) => path.clone(),
+        None => args
+            .checkpoint
+            .parent()
+            .map(|run| run.join("config.toml"))
+            .context("--checkpoint has no parent directory; name the config with --config")?,
+    };
+    let config = RunConfig::load(&config_path)?;
+    let (manifest, weights) = Checkpoint::at(&args.checkpoint)
+        .load(&config_hash(&config.net))
+        .with_context(|| format!("the nets of {}", config_path.display()))?;
+    if manifest.side != config.side() {
+        bail!(
+            "{}: trained at {} px, but {} gives {} px",
+            args.checkpoint.display(),
+            manifest.side,
+            config_path.display(),
+            config.side()
+        );
+    }
+    let mut cases: Vec<(String, Scene)> = Vec::new();
+    for path in arrangement_files(&args.arrangements)? {
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let arrangement = Arrangement::parse_toml(&text, &path)?;
+        if arrangement.goal.is_none() {
+            bail!("{}: names no goal object (goal = <id>)", path.display());
+        }
+        let name = arrangement.name.clone().unwrap_or_else(|| {
+            path.file_stem().map_or_else(
+                || path.display().to_string(),
+                |s| s.to_string_lossy().into(),
+            )
+        });
+        cases.push((name, Scene::Arrangement(arrangement)));
+    }
+    if let Some(objects) = args.random {
+        cases.push((format!("random-{objects}"), Scene::Random { objects }));
+    }
+    if cases.is_empty() {
+        bail!("nothing to test: give --arrangements and/or --random");
+    }
+    let mode = if args.grasp_only {
+        actor::Mode::GraspOnly
+    } else {
+        actor::Mode::PushGrasp
+    };
+    let mut agent = Agent::new(&config.net, config.side(), config.policy.clone(), mode);
+    agent.nets = agent
+        .nets
+        .load_bytes(&weights)
+        .with_context(|| format!("loading {}", args.checkpoint.display()))?;
+    let eval = EvalConfig {
+        sim: config.sim.clone(),
+        runs: args.runs,
+        seed: args.seed,
+        ..EvalConfig::default()
+    };
+    let reports = agent::evaluate(|| agent.clone(), &cases, &eval)?;
+    let rows: Vec<CaseRow> = reports
+        .into_iter()
+        .map(|r| CaseRow {
+            case: r.name,
+            metrics: r.metrics,
+        })
+        .collect();
+    let average = CaseMetrics::average(&rows.iter().map(|r| r.metrics).collect::<Vec<_>>());
+    let report = EvalReport {
+        checkpoint: args.checkpoint.display().to_string(),
+        updates: manifest.updates,
+        runs_per_case: args.runs,
+        seed: args.seed,
+        mode,
+        cases: rows,
+        average,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print_table(&report);
+    }
+    Ok(())
+}
+
+fn print_table(report: &EvalReport) {
+    println!(
+        "{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}",
+        report.checkpoint, report.updates, report.runs_per_case, report.seed, report.mode
+    );
+    println!(
+        "{:18} {:>11} {:>14} {:>14}",
+        "case", "completion", "grasp success", "motion number"
+    );
+    let percent = |x: Option<f64>| x.map_or("-".into(), |x| format!("{:.1}%", 100.0 * x));
+    let row = |name: &str, m: &CaseMetrics| {
+        println!(
+            "{name:18} {:>11} {:>14} {:>14}",
+            percent(Some(m.completion)),
+            percent(m.grasp_success),
+            m.motion_number.map_or("-".into(), |x| format!("{x:.2}"))
+        );
+    };
+    for case in &report.cases {
+        row(&case.case, &case.metrics);
+    }
+    row("average", &report.average);
+}
+
+/// The `.toml` files named, and those in the directories named, in order.
+fn arrangement_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            let mut inside: Vec<PathBuf> = std::fs::read_dir(path)
+                .with_context(|| format!("reading {}", path.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+                .collect();
+            inside.sort();
+            if inside.is_empty() {
+                bail!("{}: no .toml arrangement files", path.display());
+            }
+            files.extend(inside);
+        } else {
+            files.push(Path::new(path).to_path_buf());
+        }
+    }
+    Ok(files)
+}
