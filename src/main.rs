@@ -7,6 +7,7 @@ mod eval;
 mod inspect;
 mod mask_shape;
 mod pictures;
+mod pipeline;
 mod run;
 mod scene;
 mod single;
@@ -36,6 +37,8 @@ enum Command {
     TrainSingle(single::SingleArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
     Train(run::TrainArgs),
+    /// The three stages in order, each from the previous stage's checkpoint.
+    Pipeline(pipeline::PipelineArgs),
     /// One role of a training run (started by `train`, not by hand).
     #[command(hide = true)]
     Role(run::RoleArgs),
@@ -57,6 +60,7 @@ fn main() -> Result<()> {
         Command::Episode(args) => episode::run(&args),
         Command::TrainSingle(args) => single::run(&args),
         Command::Train(args) => run::train(&args),
+        Command::Pipeline(args) => pipeline::run(&args),
         Command::Role(args) => run::role_process(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Inspect(args) => inspect::inspect(&args),

@@ -28,6 +28,10 @@ pub struct RunConfig {
     /// ... or once the learner has taken this many updates (0: no limit).
     #[serde(default)]
     pub updates: u64,
+    /// The checkpoint (of an earlier stage) whose weights both nets start from; a resumed
+    /// run starts from its own checkpoint instead. Set by `--init-from` and the pipeline.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<std::path::PathBuf>,
     #[serde(default)]
     pub sim: SimConfig,
     #[serde(default)]
@@ -204,10 +208,23 @@ mod tests {
     }
 
     #[test]
-    fn the_shipped_stage_1_config_is_valid() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
-        let config = RunConfig::load(&path).unwrap();
-        assert_eq!(config.stage, 1);
-        assert_eq!(config.mode(), actor::Mode::GraspOnly);
+    fn the_shipped_stage_configs_are_valid_and_train_their_stage() {
+        for (stage, mode, nets) in [
+            (1, actor::Mode::GraspOnly, &[TrainedNet::Grasp][..]),
+            (2, actor::Mode::PushGrasp, &[TrainedNet::Push][..]),
+            (
+                3,
+                actor::Mode::PushGrasp,
+                &[TrainedNet::Grasp, TrainedNet::Push][..],
+            ),
+        ] {
+            let path =
+                Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("configs/stage{stage}.toml"));
+            let config = RunConfig::load(&path).unwrap();
+            assert_eq!(config.stage, stage);
+            assert_eq!(config.mode(), mode);
+            assert_eq!(config.trained_nets(), nets);
+            assert_eq!(config.init_from, None);
+        }
     }
 }

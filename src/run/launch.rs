@@ -54,6 +54,9 @@ pub struct TrainArgs {
     /// Override the learner-update budget.
     #[arg(long)]
     updates: Option<u64>,
+    /// Start both nets from this checkpoint (an earlier stage's `checkpoint/`).
+    #[arg(long)]
+    init_from: Option<PathBuf>,
     /// Run the roles as threads of this process over channels instead of processes over
     /// shared memory.
     #[arg(long)]
@@ -555,6 +558,12 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     }
     if let Some(updates) = args.updates {
         config.updates = updates;
+    }
+    if let Some(init) = &args.init_from {
+        // Absolute: the roles read it from the run directory's copy of the config.
+        let init = std::fs::canonicalize(init)
+            .with_context(|| format!("--init-from {}", init.display()))?;
+        config.init_from = Some(init);
     }
     config.validate()?;
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

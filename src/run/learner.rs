@@ -199,6 +199,18 @@ pub fn run(
         }
         role.trainer.load_weights(&bytes)?;
         role.updates_before = manifest.updates;
+    } else if let Some(init) = &config.init_from {
+        // An earlier stage's nets: its weights, this stage's fresh update count.
+        let (manifest, bytes) = Checkpoint::at(init).load(&config_hash(&config.net))?;
+        if manifest.side != config.side() {
+            bail!(
+                "init_from {}: the nets were trained at {} px; this run is at {} px",
+                init.display(),
+                manifest.side,
+                config.side()
+            );
+        }
+        role.trainer.load_weights(&bytes)?;
     }
     let mut control = Inbox::open(transport, Topic::Control)?;
     let mut batches = Inbox::open(transport, Topic::Batches)?;
