@@ -11,6 +11,7 @@ mod pipeline;
 mod run;
 mod scene;
 mod single;
+mod sweeps;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -52,6 +53,9 @@ enum Command {
     /// Measure the hot paths.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Run a sweep file's training runs (locally or as a Slurm job array); their status and
+    /// summary.
+    Sweep(sweeps::SweepArgs),
 }
 
 fn main() -> Result<()> {
@@ -66,5 +70,6 @@ fn main() -> Result<()> {
         Command::Inspect(args) => inspect::inspect(&args),
         Command::Logs(command) => inspect::logs(command),
         Command::Bench(command) => bench::run(command),
+        Command::Sweep(args) => sweeps::run(&args),
     }
 }

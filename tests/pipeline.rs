@@ -67,5 +67,9 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
 
     // Started again, it finds every stage done.
     let again = pipeline(&file, &logs);
-    assert_eq!(again.matches("finished before, skipped").count(), 3, "{again}");
+    assert_eq!(
+        again.matches("finished before, skipped").count(),
+        3,
+        "{again}"
+    );
 }

@@ -19,5 +19,5 @@ pub use axis::Axis;
 pub use error::SweepError;
 pub use expand::{RunPlan, dry_run_listing};
 pub use file::{Budget, Sweep};
-pub use slurm::{SlurmOptions, job_array_script};
+pub use slurm::{SlurmOptions, bash_quote, job_array_script};
 pub use stats::{group_by_all_but, mean_and_spread};

@@ -166,7 +166,7 @@ fn default_cpus(runs: &[RunPlan]) -> Result<i64, SweepError> {
 }
 
 /// `text` as one bash word: single-quoted, each embedded `'` written as `'\''`.
-fn bash_quote(text: &str) -> String {
+pub fn bash_quote(text: &str) -> String {
     format!("'{}'", text.replace('\'', r"'\''"))
 }
 
