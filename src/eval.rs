@@ -13,6 +13,7 @@ use serde::Serialize;
 use sim::Arrangement;
 
 use crate::run::config::RunConfig;
+use crate::run::files_with_extension;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -177,16 +178,7 @@ fn arrangement_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for path in paths {
         if path.is_dir() {
-            let mut inside: Vec<PathBuf> = std::fs::read_dir(path)
-                .with_context(|| format!("reading {}", path.display()))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.extension().is_some_and(|x| x == "toml"))
-                .collect();
-            inside.sort();
-            if inside.is_empty() {
-                bail!("{}: no .toml arrangement files", path.display());
-            }
-            files.extend(inside);
+            files.extend(files_with_extension(path, "toml")?);
         } else {
             files.push(Path::new(path).to_path_buf());
         }

@@ -9,10 +9,9 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Deserialize;
-use serde_json::Value;
 
 use crate::run::config::RunConfig;
-use crate::run::read_json;
+use crate::run::launch::Summary;
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -80,11 +79,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
     for (path, config, entry) in &stages {
         let run_id = format!("stage{}", config.stage);
         let run_dir = dir.join(&run_id);
-        let summary_path = run_dir.join("summary.json");
-        let finished = summary_path.exists()
-            && !read_json::<Value>(&summary_path)?["interrupted"]
-                .as_bool()
-                .unwrap_or(true);
+        let finished = Summary::read(&run_dir)?.is_some_and(|s| !s.interrupted);
         if finished {
             println!("{run_id}: finished before, skipped");
         } else {
@@ -118,14 +113,16 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
                 );
             }
         }
-        let summary: Value = read_json(&summary_path)?;
+        let summary = Summary::read(&run_dir)?
+            .with_context(|| format!("{}: no summary.json", run_dir.display()))?;
         lines.push(format!(
             "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
-            summary["buffer"]["episodes"],
-            summary["buffer"]["success_last30"]
-                .as_f64()
+            summary.buffer.episodes,
+            summary
+                .buffer
+                .success_last30
                 .map_or("-".into(), |s| format!("{:.0}%", 100.0 * s)),
-            summary["wall_s"].as_f64().unwrap_or(0.0)
+            summary.wall_s
         ));
         previous = Some(run_dir.join("checkpoint"));
     }

@@ -273,14 +273,16 @@ fn seconds_nanos_file(file: &str, name: &str) -> FileDescriptorProto {
     }
 }
 
-/// A `foxglove` file whose first message is the schema's; the others are the types it uses.
-fn foxglove_file(file: &str, messages: Vec<DescriptorProto>) -> FileDescriptorSet {
-    FileDescriptorSet {
+/// The schema `foxglove.<name>`: a file `foxglove/<name>.proto` whose first message is the
+/// schema's; the others are the types it uses.
+fn foxglove_schema(name: &'static str, messages: Vec<DescriptorProto>) -> ProtoSchema {
+    let file = format!("{}.proto", name.replace('.', "/"));
+    let set = FileDescriptorSet {
         file: vec![
             seconds_nanos_file(TIMESTAMP_FILE, "Timestamp"),
             seconds_nanos_file(DURATION_FILE, "Duration"),
             FileDescriptorProto {
-                name: Some(file.into()),
+                name: Some(file),
                 package: Some("foxglove".into()),
                 dependency: vec![TIMESTAMP_FILE.into(), DURATION_FILE.into()],
                 message_type: messages,
@@ -288,13 +290,17 @@ fn foxglove_file(file: &str, messages: Vec<DescriptorProto>) -> FileDescriptorSe
                 ..Default::default()
             },
         ],
+    };
+    ProtoSchema {
+        name,
+        descriptor_set: set.encode_to_vec(),
     }
 }
 
 pub(crate) fn raw_image_schema() -> ProtoSchema {
-    let message = DescriptorProto {
-        name: Some("RawImage".into()),
-        field: vec![
+    let message = message(
+        "RawImage",
+        vec![
             field("timestamp", 1, Type::Message, Some(TIMESTAMP_TYPE)),
             field("frame_id", 7, Type::String, None),
             field("width", 2, Type::Fixed32, None),
@@ -303,30 +309,21 @@ pub(crate) fn raw_image_schema() -> ProtoSchema {
             field("step", 5, Type::Fixed32, None),
             field("data", 6, Type::Bytes, None),
         ],
-        ..Default::default()
-    };
-    ProtoSchema {
-        name: "foxglove.RawImage",
-        descriptor_set: foxglove_file("foxglove/RawImage.proto", vec![message]).encode_to_vec(),
-    }
+    );
+    foxglove_schema("foxglove.RawImage", vec![message])
 }
 
 pub(crate) fn compressed_image_schema() -> ProtoSchema {
-    let message = DescriptorProto {
-        name: Some("CompressedImage".into()),
-        field: vec![
+    let message = message(
+        "CompressedImage",
+        vec![
             field("timestamp", 1, Type::Message, Some(TIMESTAMP_TYPE)),
             field("frame_id", 4, Type::String, None),
             field("data", 2, Type::Bytes, None),
             field("format", 3, Type::String, None),
         ],
-        ..Default::default()
-    };
-    ProtoSchema {
-        name: "foxglove.CompressedImage",
-        descriptor_set: foxglove_file("foxglove/CompressedImage.proto", vec![message])
-            .encode_to_vec(),
-    }
+    );
+    foxglove_schema("foxglove.CompressedImage", vec![message])
 }
 
 pub(crate) fn log_schema() -> ProtoSchema {
@@ -363,10 +360,7 @@ pub(crate) fn log_schema() -> ProtoSchema {
         enum_type: vec![level],
         ..Default::default()
     };
-    ProtoSchema {
-        name: "foxglove.Log",
-        descriptor_set: foxglove_file("foxglove/Log.proto", vec![message]).encode_to_vec(),
-    }
+    foxglove_schema("foxglove.Log", vec![message])
 }
 
 pub(crate) fn scene_update_schema() -> ProtoSchema {
@@ -443,10 +437,7 @@ pub(crate) fn scene_update_schema() -> ProtoSchema {
         message("Color", doubles(&["r", "g", "b", "a"])),
     ];
     messages.extend(unused.iter().map(|name| message(name, Vec::new())));
-    ProtoSchema {
-        name: "foxglove.SceneUpdate",
-        descriptor_set: foxglove_file("foxglove/SceneUpdate.proto", messages).encode_to_vec(),
-    }
+    foxglove_schema("foxglove.SceneUpdate", messages)
 }
 
 #[cfg(test)]

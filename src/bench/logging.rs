@@ -14,6 +14,7 @@ use serde_json::{Map, Value};
 use super::e2e::{actions_per_s, round, train_run};
 use super::print_figures;
 use crate::run::config::RunConfig;
+use crate::run::files_with_extension;
 
 #[derive(Args)]
 pub struct LoggingBenchArgs {
@@ -90,11 +91,8 @@ pub fn bench_logging(args: &LoggingBenchArgs) -> Result<()> {
     )?;
     let dir = work.path().join(summary_run_id(&summary));
     let mut bytes = 0u64;
-    for entry in std::fs::read_dir(&dir).with_context(|| format!("reading {}", dir.display()))? {
-        let path = entry?.path();
-        if path.extension().is_some_and(|x| x == "mcap") {
-            bytes += std::fs::metadata(&path)?.len();
-        }
+    for path in files_with_extension(&dir, "mcap")? {
+        bytes += std::fs::metadata(&path)?.len();
     }
     let episodes = summary["buffer"]["episodes"].as_u64().unwrap_or(0).max(1);
 

@@ -9,11 +9,11 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use wire::EpisodeEnd;
 
-use crate::run::SUCCESS_WINDOW;
 use crate::run::buffer::BufferReport;
 use crate::run::config::RunConfig;
 use crate::run::record::{ACTOR_STEP, BUFFER_EPISODE, BUFFER_STATS, LEARNER_UPDATE};
 use crate::run::record::{StepRecord, UpdateRecord};
+use crate::run::{SUCCESS_WINDOW, files_with_extension};
 
 /// Curves are drawn every this many episodes.
 const CURVE_EVERY: usize = 10;
@@ -80,16 +80,7 @@ pub fn mcap_files(path: &Path) -> Result<Vec<PathBuf>> {
     if path.is_file() {
         return Ok(vec![path.to_path_buf()]);
     }
-    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-        .with_context(|| format!("reading {}", path.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
-        .collect();
-    files.sort();
-    if files.is_empty() {
-        bail!("{}: no .mcap files", path.display());
-    }
-    Ok(files)
+    files_with_extension(path, "mcap")
 }
 
 /// The JSON messages on `topic` decoded as `T`; an error names the file and the topic.

@@ -489,6 +489,17 @@ pub struct Summary {
     pub actors_reports: Vec<ActorReport>,
 }
 
+impl Summary {
+    /// The `summary.json` of `run_dir`, if the run wrote one.
+    pub fn read(run_dir: &Path) -> Result<Option<Summary>> {
+        let path = run_dir.join("summary.json");
+        if !path.exists() {
+            return Ok(None);
+        }
+        read_json(&path).map(Some)
+    }
+}
+
 fn default_run_id(stage: u8) -> String {
     let secs = SystemTime::now()
         .duration_since(UNIX_EPOCH)

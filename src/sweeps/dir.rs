@@ -275,11 +275,7 @@ impl SweepDir {
 
     /// The run's `summary.json`, if it wrote one.
     pub fn summary(&self, id: &str) -> Result<Option<Summary>> {
-        let path = self.run_dir(id).join("summary.json");
-        if !path.exists() {
-            return Ok(None);
-        }
-        read_json(&path).map(Some)
+        Summary::read(&self.run_dir(id))
     }
 
     /// Whether the run ended by itself (its summary is not that of an interrupted run):
