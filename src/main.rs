@@ -10,7 +10,6 @@ mod pictures;
 mod pipeline;
 mod run;
 mod scene;
-mod single;
 mod sweeps;
 
 use anyhow::Result;
@@ -34,8 +33,6 @@ enum Command {
     Scene(scene::SceneCommand),
     /// Run a scripted episode on a random scene and write what the robot saw to logs/.
     Episode(episode::EpisodeArgs),
-    /// Train stage 1 (goal-conditioned grasping) in one process.
-    TrainSingle(single::SingleArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
     Train(run::TrainArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
@@ -62,7 +59,6 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Scene(command) => scene::run(command),
         Command::Episode(args) => episode::run(&args),
-        Command::TrainSingle(args) => single::run(&args),
         Command::Train(args) => run::train(&args),
         Command::Pipeline(args) => pipeline::run(&args),
         Command::Role(args) => run::role_process(&args),

@@ -2,6 +2,10 @@
 //! `logs/<pipeline-id>/stage<N>/` whose nets start from the previous stage's checkpoint. A
 //! pipeline started again with the same `--id` skips the stages that finished and resumes
 //! the one that was cut short.
+//!
+//! A pipeline file's `[set]` table changes every stage's config the same way: the baselines
+//! and ablations in `configs/` are the stage configs with one part of the method switched
+//! off. The resolved configs are written beside the stages (`stage<N>.toml`).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -35,6 +39,9 @@ pub struct PipelineArgs {
 #[serde(deny_unknown_fields)]
 struct PipelineFile {
     stages: Vec<StageEntry>,
+    /// Settings that replace the stage configs' own, as a TOML table (nested tables merge).
+    #[serde(default)]
+    set: toml::Table,
 }
 
 #[derive(Debug, Deserialize)]
@@ -46,25 +53,63 @@ struct StageEntry {
     episodes: Option<u64>,
 }
 
-pub fn run(args: &PipelineArgs) -> Result<()> {
-    let text = std::fs::read_to_string(&args.config)
-        .with_context(|| format!("reading {}", args.config.display()))?;
-    let file: PipelineFile =
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", args.config.display()))?;
-    if file.stages.is_empty() {
-        bail!("{}: stages: at least one stage", args.config.display());
+/// A stage's config: the file named and, with a `[set]`, the text it resolves to.
+struct Stage<'a> {
+    path: PathBuf,
+    resolved: Option<String>,
+    config: RunConfig,
+    entry: &'a StageEntry,
+}
+
+impl PipelineFile {
+    fn load(path: &Path) -> Result<Self> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let file: PipelineFile =
+            toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        if file.stages.is_empty() {
+            bail!("{}: stages: at least one stage", path.display());
+        }
+        Ok(file)
     }
-    let base = args.config.parent().unwrap_or(Path::new("."));
-    // Every stage's config is read before the first starts: a typo in stage 3 should not
-    // cost the time of stages 1 and 2.
-    let stages: Vec<(PathBuf, RunConfig, &StageEntry)> = file
-        .stages
-        .iter()
-        .map(|entry| {
-            let path = base.join(&entry.config);
-            Ok((path.clone(), RunConfig::load(&path)?, entry))
-        })
-        .collect::<Result<_>>()?;
+
+    /// Every stage's config, resolved and checked (`path`: where this file is).
+    fn stages(&self, path: &Path) -> Result<Vec<Stage<'_>>> {
+        let base = path.parent().unwrap_or(Path::new("."));
+        self.stages
+            .iter()
+            .map(|entry| {
+                let config_path = base.join(&entry.config);
+                if self.set.is_empty() {
+                    return Ok(Stage {
+                        config: RunConfig::load(&config_path)?,
+                        path: config_path,
+                        resolved: None,
+                        entry,
+                    });
+                }
+                let text = resolve(&config_path, &self.set)?;
+                let origin = format!(
+                    "{} with the [set] of {}",
+                    config_path.display(),
+                    path.display()
+                );
+                Ok(Stage {
+                    config: RunConfig::parse(&text, &origin)?,
+                    path: config_path,
+                    resolved: Some(text),
+                    entry,
+                })
+            })
+            .collect()
+    }
+}
+
+pub fn run(args: &PipelineArgs) -> Result<()> {
+    let file = PipelineFile::load(&args.config)?;
+    // Every stage's config is resolved and checked before the first starts: a typo in stage
+    // 3 should not cost the time of stages 1 and 2.
+    let stages = file.stages(&args.config)?;
     let id = args.id.clone().unwrap_or_else(|| {
         let now = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -76,9 +121,24 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
     let started = std::time::Instant::now();
     let mut previous: Option<PathBuf> = None;
     let mut lines = Vec::new();
-    for (path, config, entry) in &stages {
+    for Stage {
+        path,
+        resolved,
+        config,
+        entry,
+    } in &stages
+    {
         let run_id = format!("stage{}", config.stage);
         let run_dir = dir.join(&run_id);
+        // A [set] pipeline trains on its resolved configs, kept beside the stages.
+        let path = match resolved {
+            Some(text) => {
+                let out = dir.join(format!("{run_id}.toml"));
+                std::fs::write(&out, text).with_context(|| format!("writing {}", out.display()))?;
+                out
+            }
+            None => path.clone(),
+        };
         let finished = Summary::read(&run_dir)?.is_some_and(|s| !s.interrupted);
         if finished {
             println!("{run_id}: finished before, skipped");
@@ -87,7 +147,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
             command
                 .arg("train")
                 .arg("--config")
-                .arg(path)
+                .arg(&path)
                 .arg("--logs")
                 .arg(&dir)
                 .args(["--run-id", &run_id]);
@@ -141,4 +201,63 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The text of `config` with `set` merged into it.
+fn resolve(config: &Path, set: &toml::Table) -> Result<String> {
+    let text =
+        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
+    let mut table: toml::Table =
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
+    merge(&mut table, set);
+    Ok(toml::to_string(&table)?)
+}
+
+/// Sets every key of `set` in `table`; where both hold a table, merges into it.
+fn merge(table: &mut toml::Table, set: &toml::Table) {
+    for (key, value) in set {
+        match (table.get_mut(key), value) {
+            (Some(toml::Value::Table(inner)), toml::Value::Table(patch)) => merge(inner, patch),
+            _ => {
+                table.insert(key.clone(), value.clone());
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_pipelines_resolve_to_valid_stage_configs() {
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let mut files =
+            crate::run::files_with_extension(&configs.join("ablations"), "toml").unwrap();
+        files.extend(["pipeline.toml", "pipeline-paper.toml"].map(|f| configs.join(f)));
+        for path in files {
+            let file = PipelineFile::load(&path).unwrap();
+            let stages = file.stages(&path).unwrap();
+            assert!(!stages.is_empty(), "{}", path.display());
+            assert_eq!(
+                stages.iter().any(|s| s.resolved.is_some()),
+                !file.set.is_empty()
+            );
+        }
+    }
+
+    #[test]
+    fn set_replaces_values_and_merges_into_tables() {
+        let mut table: toml::Table =
+            toml::from_str("seed = 1\n[buffer]\ncapacity = 8\nalpha = 0.6\n").unwrap();
+        let set: toml::Table =
+            toml::from_str("push_reward = \"none\"\nbuffer.relabel = false\nbuffer.alpha = 0.0\n")
+                .unwrap();
+        merge(&mut table, &set);
+        let want: toml::Table = toml::from_str(
+            "seed = 1\npush_reward = \"none\"\n[buffer]\ncapacity = 8\nalpha = 0.0\nrelabel = false\n",
+        )
+        .unwrap();
+        assert_eq!(table, want);
+    }
 }

@@ -1,5 +1,6 @@
 //! `pushgrasp pipeline` end to end on a tiny budget: three stages in order, each starting
-//! from the previous stage's checkpoint, and a second start that skips what finished.
+//! from the previous stage's checkpoint, a `[set]` that switches parts of the method off in
+//! every stage, a second start that skips what finished, and `inspect` joining the stages.
 
 use std::process::Command;
 
@@ -38,7 +39,9 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
             )
         })
         .collect();
-    std::fs::write(&file, stages).unwrap();
+    // The ablation switches, as configs/ablations/ use them.
+    let set = "[set]\npush_reward = \"none\"\nbuffer.relabel = false\n";
+    std::fs::write(&file, format!("{set}{stages}")).unwrap();
     let logs = work.path().join("logs");
     let said = pipeline(&file, &logs);
     assert!(said.contains("pipeline smoke done"), "{said}");
@@ -53,6 +56,16 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
         let config: toml::Table =
             toml::from_str(&std::fs::read_to_string(run.join("config.toml")).unwrap()).unwrap();
         assert_eq!(config["stage"].as_integer(), Some(stage));
+        assert_eq!(config["push_reward"].as_str(), Some("none"));
+        assert_eq!(config["buffer"]["relabel"].as_bool(), Some(false));
+        assert_eq!(
+            summary["buffer"]["relabelled"], 0,
+            "relabelling is off in stage {stage}"
+        );
+        assert!(
+            dir.join(format!("stage{stage}.toml")).exists(),
+            "the resolved config"
+        );
         let init = config.get("init_from").and_then(|v| v.as_str());
         if stage == 1 {
             assert_eq!(init, None);
@@ -71,5 +84,45 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
         again.matches("finished before, skipped").count(),
         3,
         "{again}"
+    );
+
+    // inspect reads the pipeline directory as its three stages and joins them in one line.
+    let plot = work.path().join("curves.svg");
+    let inspect = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .arg("inspect")
+        .arg(&dir)
+        .arg("--json")
+        .arg("--plot")
+        .arg(&plot)
+        .output()
+        .unwrap();
+    assert!(
+        inspect.status.success(),
+        "{}",
+        String::from_utf8_lossy(&inspect.stderr)
+    );
+    let reports: Value = serde_json::from_slice(&inspect.stdout).unwrap();
+    let names: Vec<&str> = reports
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["run"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["smoke/stage1", "smoke/stage2", "smoke/stage3"]);
+    for r in reports.as_array().unwrap() {
+        let actions = r["actions"].as_u64().unwrap();
+        assert!(
+            actions >= r["episodes"].as_u64().unwrap(),
+            "an episode takes an action"
+        );
+    }
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    assert!(
+        svg.lines().any(|l| l == "smoke"),
+        "one line labelled by the pipeline"
+    );
+    assert!(
+        !svg.lines().any(|l| l == "smoke/stage2"),
+        "not one per stage"
     );
 }

@@ -13,8 +13,8 @@ pub mod reward;
 
 pub use error::ActorError;
 pub use policy::{
-    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, choose, grasp_region,
-    valid_push_starts,
+    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
+    grasp_region, valid_push_starts,
 };
 pub use qmaps::QMaps;
-pub use reward::{PUSH_REWARD, Q_IMPROVEMENT, grasp_reward, push_reward};
+pub use reward::{PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

@@ -1,6 +1,7 @@
 //! The hierarchical push-grasp policy: the grasp net is the discriminator (grasp once the
 //! goal's grasp Q exceeds Q*), the push net acts below it (at most five pushes, then a
 //! grasp), and epsilon-greedy exploration draws the chosen primitive's pixel and rotation.
+//! The goal-conditioned VPG baseline swaps the discriminator for VPG's rule ([`Rule`]).
 
 use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
@@ -30,6 +31,20 @@ pub struct PolicyConfig {
     /// Factor the exploration rate shrinks by per action. f64: 0.9998 in f32 is off by 2.6e-8,
     /// which compounds to a relative 2e-4 by the time epsilon reaches its floor.
     pub epsilon_decay: f64,
+    /// How push or grasp is chosen in push-grasp mode.
+    pub rule: Rule,
+}
+
+/// How the policy chooses between pushing and grasping.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Rule {
+    /// The paper's: grasp once the goal's grasp Q exceeds Q*, else push.
+    #[default]
+    Threshold,
+    /// Goal-conditioned VPG's: the primitive whose best Q is higher (the grasp's inside the
+    /// goal mask, the push's over its valid starts, since no push starts on an object).
+    HigherQ,
 }
 
 impl Default for PolicyConfig {
@@ -40,6 +55,7 @@ impl Default for PolicyConfig {
             epsilon_start: 0.5,
             epsilon_end: 0.1,
             epsilon_decay: 0.9998,
+            rule: Rule::Threshold,
         }
     }
 }
@@ -78,6 +94,10 @@ pub enum Reason {
     NoPushMaps,
     /// Push: the goal's grasp Q is at most Q*.
     BelowThreshold,
+    /// Grasp (VPG's rule): the goal's grasp Q is at least the best push Q.
+    GraspQHigher,
+    /// Push (VPG's rule): the best push Q is higher than the goal's grasp Q.
+    PushQHigher,
 }
 
 /// What the policy sees at one step.
@@ -158,13 +178,14 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
     }
 }
 
-/// Picks the next action. Grasp when `mode` is grasp-only, the goal's grasp Q exceeds Q*, the
-/// push budget is spent, or there are no push maps; otherwise push. The primitive goes to
-/// the argmax of its Q maps over its allowed pixels ([`grasp_region`], [`valid_push_starts`])
-/// and all rotations, or, with probability `epsilon`, to a pixel and rotation drawn
-/// uniformly from the same set. Deterministic given `rng`.
+/// Picks the next action. Grasp when `mode` is grasp-only, the push budget is spent, or
+/// there are no push maps; otherwise the config's [`Rule`] decides (the paper's: grasp when
+/// the goal's grasp Q exceeds Q*, else push). The primitive goes to the argmax of its Q maps
+/// over its allowed pixels ([`grasp_region`], [`valid_push_starts`]) and all rotations, or,
+/// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set.
+/// Deterministic given `rng`.
 ///
-/// Errors if a Q map's shape does not match the observation and [`ROTATIONS`], if the chosen
+/// Errors if a Q map's shape does not match the observation and [`ROTATIONS`], if a
 /// primitive's Q values are NaN everywhere it may act, or if `epsilon` is not in [0, 1].
 pub fn choose(
     config: &PolicyConfig,
@@ -188,18 +209,6 @@ pub fn choose(
         .best_where(&region)
         .ok_or(ActorError::NoQValue(Primitive::Grasp))?;
     let goal_grasp_q = best_grasp.0;
-    let reason = if mode == Mode::GraspOnly {
-        Reason::GraspOnlyMode
-    } else if goal_grasp_q > config.q_star {
-        Reason::AboveThreshold
-    } else if input.pushes_so_far >= config.max_pushes {
-        Reason::PushBudgetSpent
-    } else if input.push.is_none() {
-        Reason::NoPushMaps
-    } else {
-        Reason::BelowThreshold
-    };
-
     let best_push = match input.push {
         Some(push) => {
             let starts = valid_push_starts(obs);
@@ -211,8 +220,19 @@ pub fn choose(
         None => None,
     };
     let best_push_q = best_push.as_ref().map(|(_, _, best)| best.0);
+    let reason = match (best_push_q, config.rule) {
+        _ if mode == Mode::GraspOnly => Reason::GraspOnlyMode,
+        (_, Rule::Threshold) if goal_grasp_q > config.q_star => Reason::AboveThreshold,
+        _ if input.pushes_so_far >= config.max_pushes => Reason::PushBudgetSpent,
+        (None, _) => Reason::NoPushMaps,
+        (Some(_), Rule::Threshold) => Reason::BelowThreshold,
+        (Some(push_q), Rule::HigherQ) if push_q > goal_grasp_q => Reason::PushQHigher,
+        (Some(_), Rule::HigherQ) => Reason::GraspQHigher,
+    };
     let (primitive, maps, allowed, best) = match best_push {
-        Some((push, starts, best)) if reason == Reason::BelowThreshold => {
+        Some((push, starts, best))
+            if matches!(reason, Reason::BelowThreshold | Reason::PushQHigher) =>
+        {
             (Primitive::Push, push, starts, best)
         }
         _ => (Primitive::Grasp, input.grasp, region, best_grasp),
@@ -242,7 +262,7 @@ pub fn choose(
         best_push_q,
         explored,
         reason,
-        goal_visible: input.goal != 0 && obs.ids.contains(&input.goal),
+        goal_visible: obs.goal_mask(input.goal).contains(&true),
     })
 }
 

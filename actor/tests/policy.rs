@@ -9,7 +9,7 @@ use std::collections::HashSet;
 
 use actor::{
     ActorError, Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, QMaps, Reason,
-    choose, grasp_region, valid_push_starts,
+    Rule, choose, grasp_region, valid_push_starts,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -145,6 +145,45 @@ fn the_goal_is_grasped_just_above_q_star_and_pushed_for_at_or_below_it() {
             (Reason::BelowThreshold, q, 1.0)
         );
     }
+}
+
+#[test]
+fn vpgs_rule_takes_the_primitive_with_the_higher_q_whatever_q_star() {
+    let f = Fixture::new();
+    let vpg = PolicyConfig {
+        rule: Rule::HigherQ,
+        ..PolicyConfig::default()
+    };
+    let decide = |grasp_q: f32, pushes: usize| {
+        let grasp = f.grasp(grasp_q);
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let i = input(&f.obs, &grasp, Some(&f.push), pushes);
+        choose(&vpg, Mode::PushGrasp, &i, 0.0, &mut rng).unwrap()
+    };
+    // The best valid push is 1.0 (the 9.0 on a cube does not count, nor the other cube's 5.0
+    // grasp): below it the goal is pushed for even though nothing is near Q*, ...
+    let d = decide(0.99, 0);
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Push, Reason::PushQHigher)
+    );
+    assert_eq!(at(&d), (7, f.table_pixel));
+    assert_eq!(d.best_push_q, Some(1.0));
+    // ... at or above it the goal is grasped though its Q is far below Q*.
+    for q in [1.0, 1.2] {
+        let d = decide(q, 0);
+        assert_eq!(
+            (d.action.primitive, d.reason),
+            (Primitive::Grasp, Reason::GraspQHigher)
+        );
+        assert_eq!(at(&d), (3, f.goal_pixel));
+    }
+    // The push budget binds as under the paper's rule.
+    let d = decide(0.5, 5);
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Grasp, Reason::PushBudgetSpent)
+    );
 }
 
 #[test]

@@ -5,12 +5,15 @@
 //! The simulator is deterministic, so the runs of a designed arrangement would all be the
 //! same run: each run moves every object by a small seeded jitter (1 mm, 1 degree by default)
 //! before the scene settles, standing in for the run-to-run noise of the paper's simulator.
+//!
+//! Goal-agnostic runs ([`EvalConfig::goal_agnostic`]) give the agent every object as its goal
+//! ([`sim::ANY_OBJECT`]) and go on until the table is clear.
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use sim::{Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
+use sim::{ANY_OBJECT, Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
 
 use crate::agent::{Agent, AgentError};
 use crate::metrics::{ActionRecord, CaseMetrics, RunRecord};
@@ -27,9 +30,12 @@ pub struct EvalConfig {
     pub jitter_m: f32,
     /// ... and about the vertical (radians).
     pub jitter_rad: f32,
-    /// A run still undecided after this many actions counts as incomplete (a guard: the
-    /// policy's five-push limit and the ten failures already bound a run).
+    /// A run still undecided after this many actions per object it must pick counts as
+    /// incomplete (a guard: the policy's five-push limit and the ten failures already bound
+    /// a run).
     pub max_actions: usize,
+    /// Clear the table instead of picking the case's goal: every object is the goal.
+    pub goal_agnostic: bool,
 }
 
 impl Default for EvalConfig {
@@ -41,6 +47,7 @@ impl Default for EvalConfig {
             jitter_m: 0.001,
             jitter_rad: 1f32.to_radians(),
             max_actions: 100,
+            goal_agnostic: false,
         }
     }
 }
@@ -140,7 +147,7 @@ impl RunError {
 }
 
 /// One test run: the scene, then greedy actions until the run is decided, the goal has left
-/// the table, or the action guard is reached.
+/// the table (the table is clear, for a goal-agnostic run), or the action guard is reached.
 fn test_run(
     agent: &Agent,
     scene: &Scene,
@@ -150,14 +157,18 @@ fn test_run(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (mut tabletop, goal) = build(scene, config, &mut rng)?;
     let camera = Camera::new(tabletop.grid());
+    let on_table = |tabletop: &Tabletop| match goal {
+        ANY_OBJECT => tabletop.objects().count(),
+        goal => usize::from(tabletop.object(goal).is_some()),
+    };
+    let max_actions = config.max_actions * on_table(&tabletop);
     let mut record = RunRecord {
         goal,
         actions: Vec::new(),
+        objects_left: tabletop.objects().count(),
     };
     let mut pushes = 0;
-    while record.actions.len() < config.max_actions
-        && !record.outcome().decided
-        && tabletop.object(goal).is_some()
+    while record.actions.len() < max_actions && !record.outcome().decided && on_table(&tabletop) > 0
     {
         let obs = camera.render(&tabletop);
         let choice = agent
@@ -173,6 +184,7 @@ fn test_run(
             primitive: action.primitive,
             grasped: outcome.grasped,
         });
+        record.objects_left = tabletop.objects().count();
     }
     Ok(record)
 }
@@ -185,7 +197,10 @@ fn build(
 ) -> Result<(Tabletop, ObjectId), RunError> {
     match scene {
         Scene::Arrangement(arrangement) => {
-            let goal = arrangement.goal.ok_or(RunError::NoGoal)?;
+            let goal = match arrangement.goal {
+                _ if config.goal_agnostic => ANY_OBJECT,
+                goal => goal.ok_or(RunError::NoGoal)?,
+            };
             let mut jittered = arrangement.clone();
             for object in &mut jittered.objects {
                 let mut shift = |range: f32| rng.random_range(-range..=range);
@@ -205,7 +220,14 @@ fn build(
             let goal = *visible
                 .get(rng.random_range(0..visible.len().max(1)))
                 .ok_or(RunError::EmptyScene)?;
-            Ok((tabletop, goal))
+            Ok((
+                tabletop,
+                if config.goal_agnostic {
+                    ANY_OBJECT
+                } else {
+                    goal
+                },
+            ))
         }
     }
 }

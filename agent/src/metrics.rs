@@ -3,9 +3,13 @@
 //! (it counts the goal only, unlike the original `evaluate.py`). Per case: completion is the
 //! share of complete runs; grasp success is goal grasps over grasp attempts, averaged over the
 //! complete runs; motion number is the actions of a complete run, averaged.
+//!
+//! Goal-agnostic runs (goal [`ANY_OBJECT`]) clear the table instead: every object picked is a
+//! success, a run is complete when no object is left without 10 failed attempts in a row,
+//! and grasp success is objects picked over grasp attempts.
 
 use serde::{Deserialize, Serialize};
-use sim::{ObjectId, Primitive};
+use sim::{ANY_OBJECT, ObjectId, Primitive};
 
 /// Failed grasp attempts in a row that end a run incomplete.
 pub const MAX_FAILED_GRASPS: usize = 10;
@@ -21,8 +25,11 @@ pub struct ActionRecord {
 /// What happened in one test run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunRecord {
+    /// The goal object, or [`ANY_OBJECT`] when the run clears the table.
     pub goal: ObjectId,
     pub actions: Vec<ActionRecord>,
+    /// Objects on the table after the last action (what a goal-agnostic run has left).
+    pub objects_left: usize,
 }
 
 /// A run judged by the paper's rules.
@@ -31,45 +38,58 @@ pub struct RunOutcome {
     pub complete: bool,
     /// Complete, or failed out: more actions would not change the outcome.
     pub decided: bool,
-    /// Actions up to the goal grasp (or all of them for an incomplete run).
+    /// Actions up to the goal grasp, or the table cleared (all of them for an incomplete run).
     pub actions: usize,
     pub grasp_attempts: usize,
+    /// Grasps that picked the goal (any object in a goal-agnostic run).
+    pub grasp_successes: usize,
 }
 
 impl RunRecord {
     /// The run judged: actions after the goal grasp or after the 10th failure in a row do
     /// not count.
     pub fn outcome(&self) -> RunOutcome {
+        let clearing = self.goal == ANY_OBJECT;
         let mut failures_in_a_row = 0;
         let mut grasp_attempts = 0;
+        let mut grasp_successes = 0;
+        let judged =
+            |complete: bool, actions: usize, attempts: usize, successes: usize| RunOutcome {
+                complete,
+                decided: true,
+                actions,
+                grasp_attempts: attempts,
+                grasp_successes: successes,
+            };
         for (i, action) in self.actions.iter().enumerate() {
             if action.primitive != Primitive::Grasp {
                 continue;
             }
             grasp_attempts += 1;
-            if action.grasped == Some(self.goal) {
-                return RunOutcome {
-                    complete: true,
-                    decided: true,
-                    actions: i + 1,
-                    grasp_attempts,
-                };
+            let success = match action.grasped {
+                Some(_) if clearing => true,
+                grasped => grasped == Some(self.goal),
+            };
+            if success {
+                grasp_successes += 1;
+                failures_in_a_row = 0;
+                if !clearing {
+                    return judged(true, i + 1, grasp_attempts, grasp_successes);
+                }
+                continue;
             }
             failures_in_a_row += 1;
             if failures_in_a_row == MAX_FAILED_GRASPS {
-                return RunOutcome {
-                    complete: false,
-                    decided: true,
-                    actions: i + 1,
-                    grasp_attempts,
-                };
+                return judged(false, i + 1, grasp_attempts, grasp_successes);
             }
         }
+        let cleared = clearing && self.objects_left == 0;
         RunOutcome {
-            complete: false,
-            decided: false,
+            complete: cleared,
+            decided: cleared,
             actions: self.actions.len(),
             grasp_attempts,
+            grasp_successes,
         }
     }
 }
@@ -96,7 +116,7 @@ impl CaseMetrics {
             runs: outcomes.len(),
             complete_runs: complete.len(),
             completion: complete.len() as f64 / outcomes.len().max(1) as f64,
-            grasp_success: mean(&|o| 1.0 / o.grasp_attempts as f64),
+            grasp_success: mean(&|o| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64),
             motion_number: mean(&|o| o.actions as f64),
         }
     }

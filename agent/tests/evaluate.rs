@@ -6,7 +6,7 @@ use std::path::Path;
 use actor::{Mode, PolicyConfig};
 use agent::{Agent, EvalConfig, Scene, evaluate};
 use qnet::QNetConfig;
-use sim::{Arrangement, SimConfig};
+use sim::{ANY_OBJECT, Arrangement, SimConfig};
 
 fn cases() -> Vec<(String, Scene)> {
     let path =
@@ -62,6 +62,35 @@ fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
         }
     }
     assert_eq!(parallel[0].runs[0].goal, 5, "the arrangement's goal");
+    assert!(
+        parallel
+            .iter()
+            .flat_map(|case| &case.runs)
+            .all(|run| run.outcome().complete
+                == run
+                    .actions
+                    .last()
+                    .unwrap()
+                    .grasped
+                    .is_some_and(|id| id == run.goal)),
+        "a goal run ends at its goal's pick"
+    );
+
+    // Goal-agnostic: every object is the goal; a run ends with the table clear, ten misses in
+    // a row, or at the guard of 8 actions per object.
+    let agnostic = EvalConfig {
+        goal_agnostic: true,
+        ..config.clone()
+    };
+    let cleared = evaluate(make_same, &cases, &agnostic).unwrap();
+    for run in cleared.iter().flat_map(|case| &case.runs) {
+        assert_eq!(run.goal, ANY_OBJECT);
+        let outcome = run.outcome();
+        let picks = run.actions.iter().filter(|a| a.grasped.is_some()).count();
+        assert_eq!(outcome.grasp_successes, picks, "every pick counts: {run:?}");
+        assert_eq!(outcome.complete, run.objects_left == 0, "{run:?}");
+        assert!(outcome.decided || run.objects_left > 0, "{run:?}");
+    }
     // Another seed gives other scenes (the random case differs).
     let other = evaluate(make_same, &cases[1..], &EvalConfig { seed: 4, ..config }).unwrap();
     assert_ne!(other[0].runs, parallel[1].runs);

@@ -2,7 +2,7 @@
 
 use agent::metrics::MAX_FAILED_GRASPS;
 use agent::{ActionRecord, CaseMetrics, RunRecord};
-use sim::Primitive;
+use sim::{ANY_OBJECT, Primitive};
 
 const GOAL: u8 = 4;
 
@@ -24,6 +24,16 @@ fn run(actions: Vec<ActionRecord>) -> RunRecord {
     RunRecord {
         goal: GOAL,
         actions,
+        objects_left: 3,
+    }
+}
+
+/// A goal-agnostic run that left `objects_left` objects on the table.
+fn clearing(actions: Vec<ActionRecord>, objects_left: usize) -> RunRecord {
+    RunRecord {
+        goal: ANY_OBJECT,
+        actions,
+        objects_left,
     }
 }
 
@@ -89,4 +99,46 @@ fn case_figures_average_over_complete_runs_only() {
     assert!((mean.completion - 0.375).abs() < 1e-12);
     assert_eq!(mean.grasp_success, case.grasp_success);
     assert_eq!(mean.runs, 5);
+}
+
+#[test]
+fn a_goal_agnostic_run_completes_when_the_table_is_clear_and_every_pick_is_a_success() {
+    let actions = vec![
+        grasp(Some(2)),
+        push(),
+        grasp(None),
+        grasp(Some(5)),
+        grasp(Some(1)),
+    ];
+    let cleared = clearing(actions.clone(), 0).outcome();
+    assert!(cleared.complete && cleared.decided);
+    assert_eq!(
+        (
+            cleared.actions,
+            cleared.grasp_attempts,
+            cleared.grasp_successes
+        ),
+        (5, 4, 3)
+    );
+    let case = CaseMetrics::of(&[cleared]);
+    assert!((case.grasp_success.unwrap() - 0.75).abs() < 1e-12);
+
+    // Objects left: the run goes on (a goal run would have ended at its first pick of GOAL).
+    let unfinished = clearing(actions, 1).outcome();
+    assert!(!unfinished.complete && !unfinished.decided);
+}
+
+#[test]
+fn a_pick_resets_the_goal_agnostic_failure_count_and_ten_in_a_row_end_the_run() {
+    let nine_misses = || vec![grasp(None); MAX_FAILED_GRASPS - 1];
+    let mut actions = nine_misses();
+    actions.push(grasp(Some(1)));
+    actions.extend(nine_misses());
+    actions.push(grasp(Some(2)));
+    assert!(clearing(actions.clone(), 0).outcome().complete);
+
+    actions.extend(vec![grasp(None); MAX_FAILED_GRASPS]);
+    let failed = clearing(actions.clone(), 0).outcome();
+    assert!(!failed.complete && failed.decided);
+    assert_eq!(failed.actions, actions.len());
 }

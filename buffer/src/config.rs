@@ -26,6 +26,9 @@ pub struct BufferConfig {
     /// How far, in sampled items, the run may stray from that ratio before the side ahead
     /// is held back (Reverb's `error_buffer`).
     pub error_buffer: f64,
+    /// Goal relabelling: a grasp of another object than the goal is stored again for that
+    /// object, with the episode's pushes. False for the ablation without it.
+    pub relabel: bool,
 }
 
 impl Default for BufferConfig {
@@ -39,6 +42,7 @@ impl Default for BufferConfig {
             min_size_to_sample: 64,
             samples_per_insert: 8.0,
             error_buffer: 256.0,
+            relabel: true,
         }
     }
 }

@@ -23,6 +23,6 @@ pub use error::{AssembleError, ConfigError, ReplayError, SnapshotError, Snapshot
 pub use rate_limit::RateLimiter;
 pub use relabel::{EpisodeAssembler, Pending, Ready};
 pub use replay::{Batch, BatchItem, Key, PrioritizedReplay};
-pub use store::{ReplayBuffer, Stats};
+pub use store::{ReplayBuffer, Serving, Stats};
 pub use sum_tree::SumTree;
 pub use transition::Transition;

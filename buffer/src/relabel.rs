@@ -6,21 +6,17 @@
 //! A copy differs from its original only in `goal` and `reward`: goal masks are derived from
 //! the stored id maps (`Transition::goal_mask`), so nothing of a later scene is needed.
 //!
-//! The reward of a relabelled push: the actor's push reward is +0.5 when the goal's grasp Q
-//! rose by more than 0.1 and change detection fired around the goal, -0.5 when nothing
-//! changed around it, 0 otherwise. Change detection around g' is recomputed here from the
-//! stored observations (before: the push's own; after: the next step's). The grasp-Q
-//! improvement for g' is unknown to the buffer; the paper's premise that the sequence helped
-//! grasp g' stands in for it, so a relabelled push earns +0.5 when its surroundings of g'
-//! changed and -0.5 when they did not. Its bootstrap value is kept as the actor computed it
-//! (for the original goal): the buffer cannot evaluate a net.
+//! The reward of a relabelled push is the run's push reward for g'
+//! ([`PushReward::relabelled`]), from change detection around g' recomputed here from the
+//! stored observations (before: the push's own; after: the next step's). Its bootstrap value
+//! is kept as the actor computed it (for the original goal): the buffer cannot evaluate a net.
 //!
 //! Pushes after the relabelled grasp, and pushes whose observation does not show g' (its goal
 //! mask would be empty, which the policy never acts on), are not copied.
 
 use std::collections::BTreeMap;
 
-use actor::PUSH_REWARD;
+use actor::PushReward;
 use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
 use sim::{ObjectId, Primitive};
@@ -99,12 +95,14 @@ impl EpisodeAssembler {
     }
 
     /// Ends an episode whose final grasp picked `grasped` (or nothing), and returns its steps
-    /// in order, followed by the relabelled copies the paper implies. On an error the
-    /// episode stays open, untouched, so its steps can still be [`flush`](Self::flush)ed.
+    /// in order, followed by the relabelled copies the paper implies when `relabelling` gives
+    /// the run's push reward (`None`: no relabelling). On an error the episode stays open,
+    /// untouched, so its steps can still be [`flush`](Self::flush)ed.
     pub fn end(
         &mut self,
         episode: u64,
         grasped: Option<ObjectId>,
+        relabelling: Option<PushReward>,
     ) -> Result<Vec<Ready>, AssembleError> {
         let steps = self
             .open
@@ -119,9 +117,8 @@ impl EpisodeAssembler {
         }
         let ordered: Vec<&Transition> = steps.values().map(|p| &p.transition).collect();
         let copies = match grasped {
-            Some(object) => {
-                relabel(&ordered, object).ok_or(AssembleError::GraspNotFound { episode, object })?
-            }
+            Some(object) => relabel(&ordered, object, relabelling)
+                .ok_or(AssembleError::GraspNotFound { episode, object })?,
             None => Vec::new(),
         };
         self.relabelled += copies.len() as u64;
@@ -151,24 +148,29 @@ impl EpisodeAssembler {
 }
 
 /// The relabelled copies of a contiguous episode (`steps[i].step == i`) whose last grasp of
-/// `object` is the episode's outcome; `None` when no grasp picked `object`.
-fn relabel(steps: &[&Transition], object: ObjectId) -> Option<Vec<Transition>> {
+/// `object` is the episode's outcome, none without `relabelling`; `None` when no grasp
+/// picked `object`.
+fn relabel(
+    steps: &[&Transition],
+    object: ObjectId,
+    relabelling: Option<PushReward>,
+) -> Option<Vec<Transition>> {
     let grasp = steps
         .iter()
         .rposition(|t| t.primitive() == Primitive::Grasp && t.grasped == Some(object))?;
-    if steps[grasp].goal == object {
-        // The goal itself was grasped: the original already says so.
+    let Some(push_reward) = relabelling.filter(|_| steps[grasp].goal != object) else {
+        // The goal itself was grasped (the original already says so), or no relabelling.
         return Some(Vec::new());
-    }
+    };
     let mut copies = Vec::new();
     for (t, next) in steps[..grasp].iter().zip(&steps[1..=grasp]) {
         if t.primitive() != Primitive::Push || t.goal == object || !t.obs.ids.contains(&object) {
             continue;
         }
-        let changed = detect_change(&t.obs, &next.obs, object).detected;
+        let change = detect_change(&t.obs, &next.obs, object);
         copies.push(Transition {
             goal: object,
-            reward: if changed { PUSH_REWARD } else { -PUSH_REWARD },
+            reward: push_reward.relabelled(&change),
             ..(*t).clone()
         });
     }

@@ -1,6 +1,7 @@
 //! The buffer as one value: the prioritised replay, the rate limiter and the episode
 //! assembler, kept consistent with each other (what the buffer role runs and snapshots).
 
+use actor::PushReward;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use sim::{ObjectId, Primitive};
@@ -36,16 +37,29 @@ pub struct ReplayBuffer {
     replay: PrioritizedReplay,
     limiter: RateLimiter,
     assembler: EpisodeAssembler,
+    serving: Serving,
+}
+
+/// What the buffer must know of the run it serves, beyond its own config.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Serving {
+    /// The run's push reward, which relabelled pushes earn too.
+    pub push_reward: PushReward,
+    /// The primitives the learner samples. Only their inserts count toward the rate limit:
+    /// inserts nobody samples would hold the actors back for nothing (in stage 2 a grasp net
+    /// sure of the goal grasps without pushing, and the push learner would wait forever).
+    pub sampled: Vec<Primitive>,
 }
 
 impl ReplayBuffer {
-    /// An empty buffer.
-    pub fn new(config: BufferConfig) -> Result<Self, ConfigError> {
+    /// An empty buffer for the run `serving` describes.
+    pub fn new(config: BufferConfig, serving: Serving) -> Result<Self, ConfigError> {
         Ok(Self {
             replay: PrioritizedReplay::new(&config)?,
             limiter: RateLimiter::from_config(&config)?,
             assembler: EpisodeAssembler::new(),
             config,
+            serving,
         })
     }
 
@@ -72,14 +86,15 @@ impl ReplayBuffer {
         self.assembler.add(transition, priority)
     }
 
-    /// Ends an episode: stores its steps and their relabelled copies; returns their keys in
-    /// the order of [`EpisodeAssembler::end`].
+    /// Ends an episode: stores its steps and, when the config relabels, their relabelled
+    /// copies; returns their keys in the order of [`EpisodeAssembler::end`].
     pub fn end_episode(
         &mut self,
         episode: u64,
         grasped: Option<ObjectId>,
     ) -> Result<Vec<Key>, AssembleError> {
-        let ready = self.assembler.end(episode, grasped)?;
+        let relabelling = self.config.relabel.then_some(self.serving.push_reward);
+        let ready = self.assembler.end(episode, grasped, relabelling)?;
         Ok(self.store(ready))
     }
 
@@ -94,10 +109,12 @@ impl ReplayBuffer {
             .into_iter()
             .map(|r| {
                 let primitive = r.transition.primitive();
-                if self.replay.len(primitive) == self.replay.capacity() {
-                    self.limiter.on_delete(1);
+                if self.serving.sampled.contains(&primitive) {
+                    if self.replay.len(primitive) == self.replay.capacity() {
+                        self.limiter.on_delete(1);
+                    }
+                    self.limiter.on_insert(1);
                 }
-                self.limiter.on_insert(1);
                 self.replay
                     .insert(r.transition, r.priority)
                     .expect("priorities were checked when the step arrived")

@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 
+use actor::PushReward;
 use buffer::{
     AssembleError, BufferConfig, EpisodeAssembler, Key, PrioritizedReplay, ReplayBuffer,
-    ReplayError, SnapshotErrorKind, Transition,
+    ReplayError, Serving, SnapshotErrorKind, Transition,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -267,6 +268,17 @@ fn scene(present: bool, boxed: bool) -> Heightmaps {
     m
 }
 
+/// The paper's relabelling, with its dense push reward.
+const DENSE: Option<PushReward> = Some(PushReward::Dense);
+
+/// A run with the dense push reward whose learner samples both primitives.
+fn serving_both() -> Serving {
+    Serving {
+        push_reward: PushReward::Dense,
+        sampled: vec![Primitive::Push, Primitive::Grasp],
+    }
+}
+
 /// An episode for goal 5: a push seeing no object 9, a push that clears around 9, a push
 /// that changes nothing, and a grasp that picks 9.
 fn non_goal_episode(episode: u64) -> Vec<Transition> {
@@ -296,7 +308,7 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
     for (i, t) in originals.iter().enumerate().rev() {
         assembler.add(t.clone(), Some(i as f64)).unwrap();
     }
-    let ready = assembler.end(4, Some(9)).unwrap();
+    let ready = assembler.end(4, Some(9), DENSE).unwrap();
     assert_eq!(ready.len(), 4 + 3);
     for (i, r) in ready[..4].iter().enumerate() {
         assert_eq!(r.transition, originals[i], "originals are stored unchanged");
@@ -345,6 +357,46 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
 }
 
 #[test]
+fn relabelled_pushes_earn_the_runs_push_reward_and_nothing_is_copied_without_relabelling() {
+    let rewards = |relabelling: Option<PushReward>| {
+        let mut assembler = EpisodeAssembler::new();
+        for t in non_goal_episode(4) {
+            assembler.add(t, None).unwrap();
+        }
+        let ready = assembler.end(4, Some(9), relabelling).unwrap();
+        let copies: Vec<f32> = ready
+            .iter()
+            .filter(|r| r.relabelled)
+            .map(|r| r.transition.reward)
+            .collect();
+        (ready.len(), copies, assembler.relabelled())
+    };
+    // Push 1 cleared around object 9, push 2 did not; the grasp copy earns 1.
+    assert_eq!(rewards(DENSE), (7, vec![0.5, -0.5, 1.0], 3));
+    assert_eq!(
+        rewards(Some(PushReward::Change)),
+        (7, vec![0.5, 0.0, 1.0], 3)
+    );
+    assert_eq!(rewards(Some(PushReward::None)), (7, vec![0.0, 0.0, 1.0], 3));
+    assert_eq!(rewards(None), (4, vec![], 0));
+
+    // Through the buffer: `relabel = false` stores the originals only.
+    let mut buffer = ReplayBuffer::new(
+        BufferConfig {
+            relabel: false,
+            ..config(16)
+        },
+        serving_both(),
+    )
+    .unwrap();
+    for t in non_goal_episode(1) {
+        buffer.add_step(t, Some(0.5)).unwrap();
+    }
+    assert_eq!(buffer.end_episode(1, Some(9)).unwrap().len(), 4);
+    assert_eq!(buffer.stats().relabelled, 0);
+}
+
+#[test]
 fn a_grasp_of_the_goal_or_of_nothing_creates_no_copies() {
     let mut assembler = EpisodeAssembler::new();
     let mut goal_episode = non_goal_episode(1);
@@ -355,7 +407,7 @@ fn a_grasp_of_the_goal_or_of_nothing_creates_no_copies() {
     for t in &goal_episode {
         assembler.add(t.clone(), None).unwrap();
     }
-    let ready = assembler.end(1, Some(9)).unwrap();
+    let ready = assembler.end(1, Some(9), DENSE).unwrap();
     assert_eq!(ready.len(), 4);
     assert!(ready.iter().all(|r| !r.relabelled));
 
@@ -364,7 +416,7 @@ fn a_grasp_of_the_goal_or_of_nothing_creates_no_copies() {
     for t in &failed {
         assembler.add(t.clone(), None).unwrap();
     }
-    assert_eq!(assembler.end(2, None).unwrap().len(), 4);
+    assert_eq!(assembler.end(2, None, DENSE).unwrap().len(), 4);
     assert_eq!(assembler.relabelled(), 0);
 }
 
@@ -387,7 +439,7 @@ fn inconsistent_episodes_are_refused_and_stay_open() {
     assembler.add(steps[2].clone(), None).unwrap();
     assembler.add(steps[3].clone(), None).unwrap();
     assert_eq!(
-        assembler.end(7, Some(9)),
+        assembler.end(7, Some(9), DENSE),
         Err(AssembleError::MissingStep {
             episode: 7,
             missing: 1
@@ -395,14 +447,14 @@ fn inconsistent_episodes_are_refused_and_stay_open() {
     );
     assembler.add(steps[1].clone(), None).unwrap();
     assert_eq!(
-        assembler.end(7, Some(4)),
+        assembler.end(7, Some(4), DENSE),
         Err(AssembleError::GraspNotFound {
             episode: 7,
             object: 4
         })
     );
     assert_eq!(
-        assembler.end(8, None),
+        assembler.end(8, None, DENSE),
         Err(AssembleError::UnknownEpisode(8))
     );
     // Nothing was lost: a flush returns all four steps, in order.
@@ -419,7 +471,7 @@ fn the_buffer_stores_relabelled_episodes_and_limits_sampling() {
         error_buffer: 2.0,
         ..config(16)
     };
-    let mut buffer = ReplayBuffer::new(cfg).unwrap();
+    let mut buffer = ReplayBuffer::new(cfg, serving_both()).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     for t in non_goal_episode(1) {
         buffer.add_step(t, Some(0.5)).unwrap();
@@ -452,12 +504,53 @@ fn the_buffer_stores_relabelled_episodes_and_limits_sampling() {
     assert_eq!(buffer.replay().priority(&updates[0].0), Some(2.0));
 }
 
+#[test]
+fn only_inserts_of_sampled_primitives_count_toward_the_rate_limit() {
+    let cfg = BufferConfig {
+        min_size_to_sample: 1,
+        samples_per_insert: 1.0,
+        error_buffer: 2.0,
+        ..config(16)
+    };
+    // Stage 2: the learner samples pushes only. Episodes of grasps alone must not hold the
+    // actors back, however many arrive.
+    let mut pushes_only = ReplayBuffer::new(
+        cfg.clone(),
+        Serving {
+            push_reward: PushReward::Dense,
+            sampled: vec![Primitive::Push],
+        },
+    )
+    .unwrap();
+    let mut both = ReplayBuffer::new(cfg, serving_both()).unwrap();
+    for episode in 0..6 {
+        let mut grasp = step(episode, 0, Primitive::Grasp, 5);
+        grasp.grasped = Some(5);
+        for buffer in [&mut pushes_only, &mut both] {
+            buffer.add_step(grasp.clone(), None).unwrap();
+            buffer.end_episode(episode, Some(5)).unwrap();
+        }
+    }
+    assert_eq!(pushes_only.stats().grasp_len, 6);
+    assert_eq!(pushes_only.limiter().inserts(), 0);
+    assert!(pushes_only.can_insert(1));
+    assert!(!pushes_only.can_sample(1), "no push yet to sample");
+    assert_eq!(both.limiter().inserts(), 6);
+    assert!(
+        !both.can_insert(1),
+        "6 inserts, no samples: the limit holds"
+    );
+}
+
 /// A buffer with stored items of both kinds, updated priorities, samples, and an open episode.
 fn busy_buffer() -> ReplayBuffer {
-    let mut buffer = ReplayBuffer::new(BufferConfig {
-        min_size_to_sample: 2,
-        ..config(5)
-    })
+    let mut buffer = ReplayBuffer::new(
+        BufferConfig {
+            min_size_to_sample: 2,
+            ..config(5)
+        },
+        serving_both(),
+    )
     .unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     for episode in 0..3 {

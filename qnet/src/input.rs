@@ -29,8 +29,8 @@ pub fn normalise_depth(height: f32) -> f32 {
 }
 
 impl NetInput {
-    /// The planes of `maps` with `goal`'s mask (all zero when the goal is hidden or 0, which
-    /// is the goal-agnostic "no goal").
+    /// The planes of `maps` with `goal`'s mask (all zero when the goal is hidden; every
+    /// object for the goal-agnostic [`sim::ANY_OBJECT`]).
     pub fn encode(maps: &Heightmaps, goal: ObjectId) -> Self {
         let n = maps.grid.len();
         let mut colour = vec![0.0; 3 * n];

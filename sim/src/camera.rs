@@ -47,9 +47,13 @@ impl Heightmaps {
         row * self.grid.side() + col
     }
 
-    /// The goal mask: 1 where the goal object is the highest surface, else 0.
+    /// The goal mask: 1 where the goal object is the highest surface, else 0; for
+    /// [`ANY_OBJECT`](crate::ANY_OBJECT), 1 wherever an object is.
     pub fn goal_mask(&self, goal: ObjectId) -> Vec<bool> {
-        self.ids.iter().map(|&id| id == goal && goal != 0).collect()
+        self.ids
+            .iter()
+            .map(|&id| id != 0 && (id == goal || goal == crate::ANY_OBJECT))
+            .collect()
     }
 
     /// The ids seen from above, in increasing order.

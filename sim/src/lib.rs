@@ -29,5 +29,5 @@ pub use primitives::{
 };
 pub use rapier3d;
 pub use scene::SceneReport;
-pub use tabletop::{ObjectId, ObjectView, SettleReport, Tabletop};
+pub use tabletop::{ANY_OBJECT, ObjectId, ObjectView, SettleReport, Tabletop};
 pub use workspace::PixelGrid;

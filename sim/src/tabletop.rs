@@ -14,6 +14,11 @@ use crate::workspace::{self, PixelGrid};
 /// An object's id: 1..=255, 0 is the table in the id heightmap.
 pub type ObjectId = u8;
 
+/// The goal of goal-agnostic mode: every object is the goal (its mask covers them all), so
+/// the policy grasps whichever it scores highest, until the table is clear. The table's id,
+/// which is never an object's.
+pub const ANY_OBJECT: ObjectId = 0;
+
 /// Speeds below which an object counts as at rest, and for how many steps in a row.
 const REST_LINEAR: f32 = 0.005;
 const REST_ANGULAR: f32 = 0.05;

@@ -3,7 +3,7 @@
 use sim::measure::{detect_change, occupancy_ratio};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::{CENTRE, X_MIN, Y_MIN};
-use sim::{Camera, Heightmaps, ShapeKind, SimConfig, Tabletop};
+use sim::{ANY_OBJECT, Camera, Heightmaps, ShapeKind, SimConfig, Tabletop};
 
 fn render(tabletop: &Tabletop) -> Heightmaps {
     Camera::new(tabletop.grid()).render(tabletop)
@@ -148,8 +148,11 @@ fn the_goal_mask_is_the_goal_pixels_of_the_id_map() {
         assert!(mask.iter().zip(&maps.ids).all(|(&m, &i)| m == (i == id)));
     }
     assert!(
-        maps.goal_mask(0).iter().all(|&m| !m),
-        "the table is never a goal"
+        maps.goal_mask(ANY_OBJECT)
+            .iter()
+            .zip(&maps.ids)
+            .all(|(&m, &i)| m == (i != 0)),
+        "the goal-agnostic mask is every object and never the table"
     );
 }
 

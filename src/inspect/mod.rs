@@ -2,7 +2,9 @@
 //! processes (counts, time spans, whether one had to be recovered), the run's config, the
 //! paper's metric and the learner's and buffer's curves (as tables, `--json` or a `--plot`),
 //! an episode table, and one episode's pictures (`--episode K --export DIR`). Several runs at
-//! once overlay their curves. `pushgrasp logs recover` rewrites a file cut short by a crash.
+//! once overlay their curves; a pipeline directory's stages join into one line, episodes,
+//! actions and updates counting on from stage to stage. `pushgrasp logs recover` rewrites a
+//! file cut short by a crash.
 
 mod export;
 mod run;
@@ -14,11 +16,12 @@ use clap::{Args, Subcommand};
 use serde::Serialize;
 
 use crate::run::SUCCESS_WINDOW;
-use run::{EpisodeRow, FileReport, Run};
+use run::{EpisodeRow, FileReport, Run, pipeline_stages};
 
 #[derive(Args)]
 pub struct InspectArgs {
-    /// Run directories (every .mcap in each) or .mcap files; several overlay their curves.
+    /// Run directories (every .mcap in each), pipeline directories (their stages joined into
+    /// one line) or .mcap files; several overlay their curves.
     #[arg(required = true)]
     paths: Vec<PathBuf>,
     /// Print one JSON object per run (an array for several) instead of tables.
@@ -65,8 +68,12 @@ struct RunReport<'a> {
     steps_sent: u64,
     steps_received: Option<u64>,
     learner_updates: Option<u64>,
+    /// Actions (steps) of the episodes the buffer took in.
+    actions: u64,
     /// Goal grasp success over the last 30 episodes, every 10 episodes.
     curve: Vec<(u64, f64)>,
+    /// The same curve against the actions taken by then.
+    curve_by_actions: Vec<(u64, f64)>,
     /// Mean predicted Q of the goal grasps among the last 30 episodes, every 10 episodes.
     goal_grasp_q: Vec<(u64, f64)>,
     /// Share of the buffer's transitions that are relabelled copies, by episodes taken in.
@@ -78,6 +85,11 @@ struct RunReport<'a> {
 impl<'a> RunReport<'a> {
     fn new(run: &'a Run) -> Self {
         let curve = run.success_curve();
+        let actions = run.actions_by_episode();
+        let curve_by_actions = curve
+            .iter()
+            .map(|&(episode, success)| (actions[episode as usize - 1], success))
+            .collect();
         RunReport {
             run: &run.name,
             files: &run.files,
@@ -91,7 +103,9 @@ impl<'a> RunReport<'a> {
             steps_sent: run.steps.len() as u64,
             steps_received: run.buffer.last().map(|b| b.steps_received),
             learner_updates: run.updates.last().map(|u| u.updates),
+            actions: actions.last().copied().unwrap_or(0),
             curve,
+            curve_by_actions,
             goal_grasp_q: run.goal_grasp_q_curve(),
             relabelled_share: run.relabelled_curve(),
             loss: run.loss_curves(),
@@ -99,15 +113,43 @@ impl<'a> RunReport<'a> {
     }
 }
 
+/// One line of the plots: a run, or a pipeline's stages joined.
+struct Line {
+    label: String,
+    /// Indices into the runs, in stage order.
+    runs: Vec<usize>,
+}
+
 pub fn inspect(args: &InspectArgs) -> Result<()> {
-    let runs = args
-        .paths
-        .iter()
-        .map(|p| Run::read(p))
-        .collect::<Result<Vec<_>>>()?;
+    let mut runs = Vec::new();
+    let mut lines = Vec::new();
+    for path in &args.paths {
+        let stages = pipeline_stages(path);
+        let label = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into(),
+        );
+        let first = runs.len();
+        if stages.is_empty() {
+            runs.push(Run::read(path)?);
+        } else {
+            for stage in &stages {
+                let mut run = Run::read(stage)?;
+                run.name = format!("{label}/{}", run.name);
+                runs.push(run);
+            }
+        }
+        lines.push(Line {
+            label,
+            runs: (first..runs.len()).collect(),
+        });
+    }
     if let (Some(number), Some(dir)) = (args.episode, &args.export) {
         let [run] = runs.as_slice() else {
-            bail!("--episode and --export take one run, not {}", runs.len());
+            bail!(
+                "--episode and --export take one run (a stage's directory), not {}",
+                runs.len()
+            );
         };
         let written = export::export_episode(run, number, dir)?;
         println!(
@@ -119,7 +161,7 @@ pub fn inspect(args: &InspectArgs) -> Result<()> {
     }
     let reports: Vec<RunReport> = runs.iter().map(RunReport::new).collect();
     if let Some(path) = &args.plot {
-        plots::draw(&charts(&runs, &reports), 2, path)?;
+        plots::draw(&charts(&runs, &reports, &lines), 2, path)?;
     }
     if args.json {
         let json = match reports.as_slice() {
@@ -234,39 +276,94 @@ fn print_episode(e: &EpisodeRow) {
     )
 }
 
-/// The four panels `--plot` draws, one series per run.
-fn charts(runs: &[Run], reports: &[RunReport]) -> Vec<plots::Chart> {
-    let series = |points: &dyn Fn(&RunReport) -> Vec<(f64, f64)>| -> Vec<plots::Series> {
-        reports
+/// The panels `--plot` draws, one series per line: a pipeline's stages follow each other,
+/// each stage's episodes, actions and updates counted on from the previous stage's last.
+fn charts(runs: &[Run], reports: &[RunReport], lines: &[Line]) -> Vec<plots::Chart> {
+    let joined = |points: &dyn Fn(&RunReport) -> Vec<(u64, f64)>,
+                  extent: &dyn Fn(&RunReport) -> u64,
+                  by: f64|
+     -> Vec<plots::Series> {
+        lines
             .iter()
-            .map(|r| plots::Series {
-                label: r.run.to_string(),
-                points: points(r),
+            .map(|line| {
+                let mut offset = 0;
+                let mut joined = Vec::new();
+                for &i in &line.runs {
+                    joined.extend(
+                        points(&reports[i])
+                            .into_iter()
+                            .map(|(x, y)| ((offset + x) as f64, by * y)),
+                    );
+                    offset += extent(&reports[i]);
+                }
+                plots::Series {
+                    label: line.label.clone(),
+                    points: joined,
+                }
             })
             .collect()
     };
-    let scaled = |points: &[(u64, f64)], by: f64| -> Vec<(f64, f64)> {
-        points.iter().map(|&(x, y)| (x as f64, by * y)).collect()
-    };
+    let episodes = |r: &RunReport| r.episodes;
+    let updates = |r: &RunReport| r.learner_updates.unwrap_or(0);
     let q_star = runs
         .iter()
         .find_map(|r| r.config.as_ref())
         .map_or(actor::PolicyConfig::default().q_star, |c| c.policy.q_star);
-    let loss = reports
+    let mut primitives: Vec<&str> = reports
         .iter()
-        .flat_map(|r| {
-            r.loss.iter().map(move |(primitive, points)| plots::Series {
-                label: format!("{} {primitive}", r.run),
-                points: scaled(points, 1.0),
-            })
+        .flat_map(|r| r.loss.iter().map(|(p, _)| p.as_str()))
+        .collect();
+    primitives.sort();
+    primitives.dedup();
+    let loss = primitives
+        .into_iter()
+        .flat_map(|primitive| {
+            let of_primitive = move |r: &RunReport| -> Vec<(u64, f64)> {
+                r.loss
+                    .iter()
+                    .find(|(p, _)| p == primitive)
+                    .map_or_else(Vec::new, |(_, points)| points.clone())
+            };
+            joined(&of_primitive, &updates, 1.0)
+                .into_iter()
+                .filter(|s| !s.points.is_empty())
+                .map(move |s| plots::Series {
+                    label: format!("{} {primitive}", s.label),
+                    points: s.points,
+                })
         })
         .collect();
+    let success = format!("Goal grasp success (last {SUCCESS_WINDOW} episodes)");
     vec![
         plots::Chart {
-            title: format!("Goal grasp success (last {SUCCESS_WINDOW} episodes)"),
+            title: success.clone(),
             x_label: "episodes".into(),
             y_label: "%".into(),
-            series: series(&|r| scaled(&r.curve, 100.0)),
+            series: joined(&|r| r.curve.clone(), &episodes, 100.0),
+            references: Vec::new(),
+            y_range: Some((0.0, 100.0)),
+        },
+        plots::Chart {
+            title: success,
+            x_label: "actions".into(),
+            y_label: "%".into(),
+            series: joined(&|r| r.curve_by_actions.clone(), &|r| r.actions, 100.0),
+            references: Vec::new(),
+            y_range: Some((0.0, 100.0)),
+        },
+        plots::Chart {
+            title: format!("Q of goal grasps (last {SUCCESS_WINDOW} episodes)"),
+            x_label: "episodes".into(),
+            y_label: "predicted Q".into(),
+            series: joined(&|r| r.goal_grasp_q.clone(), &episodes, 1.0),
+            references: vec![(f64::from(q_star), "Q*".into())],
+            y_range: None,
+        },
+        plots::Chart {
+            title: "Relabelled share of stored transitions".into(),
+            x_label: "episodes".into(),
+            y_label: "%".into(),
+            series: joined(&|r| r.relabelled_share.clone(), &episodes, 100.0),
             references: Vec::new(),
             y_range: Some((0.0, 100.0)),
         },
@@ -277,22 +374,6 @@ fn charts(runs: &[Run], reports: &[RunReport]) -> Vec<plots::Chart> {
             series: loss,
             references: Vec::new(),
             y_range: None,
-        },
-        plots::Chart {
-            title: format!("Q of goal grasps (last {SUCCESS_WINDOW} episodes)"),
-            x_label: "episodes".into(),
-            y_label: "predicted Q".into(),
-            series: series(&|r| scaled(&r.goal_grasp_q, 1.0)),
-            references: vec![(f64::from(q_star), "Q*".into())],
-            y_range: None,
-        },
-        plots::Chart {
-            title: "Relabelled share of stored transitions".into(),
-            x_label: "episodes".into(),
-            y_label: "%".into(),
-            series: series(&|r| scaled(&r.relabelled_share, 100.0)),
-            references: Vec::new(),
-            y_range: Some((0.0, 100.0)),
         },
     ]
 }

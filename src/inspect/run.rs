@@ -75,6 +75,27 @@ pub struct Run {
     pub buffer: Vec<BufferReport>,
 }
 
+/// The stage runs of a pipeline directory (`stage<N>/` with MCAP logs), in stage order; empty
+/// for any other path.
+pub fn pipeline_stages(path: &Path) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(path) else {
+        return Vec::new();
+    };
+    let mut stages: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.is_dir()
+                && p.file_name()
+                    .and_then(|n| n.to_str())
+                    .and_then(|n| n.strip_prefix("stage"))
+                    .is_some_and(|n| n.parse::<u8>().is_ok())
+                && files_with_extension(p, "mcap").is_ok()
+        })
+        .collect();
+    stages.sort();
+    stages
+}
+
 /// The `.mcap` files of a run directory, or the one file given.
 pub fn mcap_files(path: &Path) -> Result<Vec<PathBuf>> {
     if path.is_file() {
@@ -196,6 +217,18 @@ impl Run {
             .collect();
         steps.sort_by_key(|(_, s)| s.step);
         Ok((row, steps))
+    }
+
+    /// The actions (steps) the run had taken when each episode ended: index i holds the
+    /// count after episode i + 1.
+    pub fn actions_by_episode(&self) -> Vec<u64> {
+        self.episodes
+            .iter()
+            .scan(0u64, |total, e| {
+                *total += u64::from(e.steps);
+                Some(*total)
+            })
+            .collect()
     }
 
     /// Goal grasp success over the last 30 episodes, every 10 episodes (and at the last).

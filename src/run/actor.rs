@@ -6,7 +6,7 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
-use actor::{Decision, QMaps, grasp_reward, push_reward};
+use actor::{Decision, PushReward, QMaps, grasp_reward};
 use agent::{Agent, Choice};
 use anyhow::{Context, Result};
 use buffer::Transition;
@@ -85,6 +85,7 @@ struct Shipper<'a> {
     outbox: Outbox,
     origin: Origin,
     gamma: f32,
+    push_reward: PushReward,
     weights_version: u64,
     steps_sent: u64,
 }
@@ -114,14 +115,11 @@ impl Shipper<'_> {
                     .push_changed
                     .as_ref()
                     .expect("pushes carry a change");
-                t.reward = match next {
-                    Some(after) => {
-                        push_reward(pending.decision.goal_grasp_q, after.goal_grasp_q, change)
-                    }
-                    // Not reached (episodes end with a grasp); without an after, only the
-                    // change counts.
-                    None => push_reward(0.0, 0.0, change),
-                };
+                let before = pending.decision.goal_grasp_q;
+                // Not reached without a next decision (episodes end with a grasp); then only
+                // the change counts.
+                let after = next.map_or(before, |d| d.goal_grasp_q);
+                t.reward = self.push_reward.reward(before, after, change);
                 let next_value = next.map(|d| d.state_value());
                 (push_label(t.reward, next_value, self.gamma), next_value)
             }
@@ -239,6 +237,7 @@ pub fn run(
             seq: 0,
         },
         gamma: config.learning.gamma,
+        push_reward: config.push_reward,
         weights_version: 0,
         steps_sent: 0,
     };

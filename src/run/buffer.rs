@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use buffer::ReplayBuffer;
+use buffer::{ReplayBuffer, Serving};
 use mcaplog::RunLog;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -168,27 +168,31 @@ impl BufferRole {
         Ok(())
     }
 
-    /// Answers the oldest request if the replay holds its primitive and the rate limiter
-    /// allows it.
+    /// Answers the oldest request once the rate limiter allows it: with a batch, or with no
+    /// items while the replay holds none of its primitive (in stage 3 the policy may not
+    /// have pushed yet; the learner then trains the other net instead of waiting).
     fn serve(&mut self, batches: &mut Outbox) -> Result<bool> {
         let Some(&request) = self.requests.front() else {
             return Ok(false);
         };
         let size = request.size as usize;
-        if self.replay.replay().is_empty(request.primitive) || !self.replay.can_sample(size as u64)
-        {
+        if !self.replay.can_sample(size as u64) {
             return Ok(false);
         }
-        let batch = self.replay.sample(request.primitive, size, &mut self.rng)?;
-        let items = batch
-            .items
-            .iter()
-            .map(|item| BatchItem {
-                key: item.key,
-                weight: item.weight,
-                transition: item.transition.clone(),
-            })
-            .collect();
+        let items = if self.replay.replay().is_empty(request.primitive) {
+            Vec::new()
+        } else {
+            let batch = self.replay.sample(request.primitive, size, &mut self.rng)?;
+            batch
+                .items
+                .iter()
+                .map(|item| BatchItem {
+                    key: item.key,
+                    weight: item.weight,
+                    transition: item.transition.clone(),
+                })
+                .collect()
+        };
         self.requests.pop_front();
         batches.send(&Message::Batch(BatchMessage {
             request: request.id,
@@ -268,7 +272,17 @@ pub fn run(
 ) -> Result<BufferReport> {
     let files = BufferFiles::in_dir(dir);
     let mut role = BufferRole {
-        replay: ReplayBuffer::new(config.buffer.clone())?,
+        replay: ReplayBuffer::new(
+            config.buffer.clone(),
+            Serving {
+                push_reward: config.push_reward,
+                sampled: config
+                    .trained_nets()
+                    .iter()
+                    .map(|n| n.primitive())
+                    .collect(),
+            },
+        )?,
         report: BufferReport::default(),
         streams: BTreeMap::new(),
         requests: VecDeque::new(),

@@ -36,6 +36,10 @@ pub struct RunConfig {
     pub sim: SimConfig,
     #[serde(default)]
     pub policy: actor::PolicyConfig,
+    /// What a push earns: "dense" (the paper's, judged by the grasp net), "change" (VPG's)
+    /// or "none" (the ablation without a push reward).
+    #[serde(default)]
+    pub push_reward: actor::PushReward,
     /// Ape-X exploration instead of the policy's decaying schedule: actor i of N explores
     /// with a fixed epsilon^(1 + alpha i / (N - 1)).
     #[serde(default)]
@@ -118,11 +122,15 @@ impl RunConfig {
     pub fn load(path: &Path) -> Result<Self> {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let config: Self =
-            toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Reads and checks a config's text; errors name `origin`.
+    pub fn parse(text: &str, origin: &str) -> Result<Self> {
+        let config: Self = toml::from_str(text).map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
         config
             .validate()
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            .map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
         Ok(config)
     }
 

@@ -41,6 +41,9 @@ pub struct LearnerReport {
     /// Updates this process took and the seconds from its first batch to the stop.
     pub session_updates: u64,
     pub training_s: f64,
+    /// Requests the buffer answered with no items (none of their primitive stored yet).
+    #[serde(default)]
+    pub empty_batches: u64,
 }
 
 /// The training sample of a stored transition: its label from reward and bootstrap value.
@@ -103,12 +106,7 @@ impl LearnerRole<'_> {
 
     /// One update on a batch; returns the new priorities.
     fn train(&mut self, batch: &BatchMessage) -> Result<PriorityUpdate> {
-        let Some(first) = batch.items.first() else {
-            bail!(
-                "the buffer answered request {} with no items",
-                batch.request
-            );
-        };
+        let first = batch.items.first().expect("empty batches are skipped");
         let net = self
             .config
             .trained_nets()
@@ -237,18 +235,22 @@ pub fn run(
         }
         match batches.try_recv()? {
             Some(Message::Batch(batch)) => {
-                first_batch.get_or_insert_with(Instant::now);
                 if in_flight.pop_front() != Some(batch.request) {
                     bail!("the buffer answered request {} out of order", batch.request);
                 }
-                let priorities = role.train(&batch)?;
-                requests.send(&Message::PriorityUpdate(priorities))?;
-                let updates = role.updates();
-                if updates.is_multiple_of(config.learner.publish_every) {
-                    role.publish(&mut weights)?;
-                }
-                if updates.is_multiple_of(config.learner.checkpoint_every) {
-                    role.save_checkpoint()?;
+                if batch.items.is_empty() {
+                    role.report.empty_batches += 1;
+                } else {
+                    first_batch.get_or_insert_with(Instant::now);
+                    let priorities = role.train(&batch)?;
+                    requests.send(&Message::PriorityUpdate(priorities))?;
+                    let updates = role.updates();
+                    if updates.is_multiple_of(config.learner.publish_every) {
+                        role.publish(&mut weights)?;
+                    }
+                    if updates.is_multiple_of(config.learner.checkpoint_every) {
+                        role.save_checkpoint()?;
+                    }
                 }
             }
             Some(other) => bail!("the batches topic carried {other:?}"),
