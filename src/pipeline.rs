@@ -178,10 +178,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
         lines.push(format!(
             "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
             summary.buffer.episodes,
-            summary
-                .buffer
-                .success_last30
-                .map_or("-".into(), |s| format!("{:.0}%", 100.0 * s)),
+            crate::run::launch::percent(summary.buffer.success_last30),
             summary.wall_s
         ));
         previous = Some(run_dir.join("checkpoint"));

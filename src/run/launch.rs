@@ -524,7 +524,8 @@ fn newest_run(logs: &Path) -> Result<String> {
         .ok_or_else(|| anyhow!("--resume: no run directory in {}", logs.display()))
 }
 
-fn percent(share: Option<f64>) -> String {
+/// A share as a whole percentage, or "-" when there is none yet.
+pub fn percent(share: Option<f64>) -> String {
     share.map_or("-".into(), |s| format!("{:.0}%", 100.0 * s))
 }
 

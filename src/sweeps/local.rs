@@ -255,10 +255,7 @@ fn outcome(dir: &SweepDir, id: &str, status: ExitStatus, stopped: bool) -> Resul
                 "done"
             },
             summary.buffer.episodes,
-            summary
-                .buffer
-                .success_last30
-                .map_or("-".into(), |s| format!("{:.0}%", 100.0 * s)),
+            crate::run::launch::percent(summary.buffer.success_last30),
             summary.wall_s
         ),
         None => format!(
