@@ -32,6 +32,23 @@ pub struct PipelineArgs {
     /// Run each stage's roles as threads instead of processes.
     #[arg(long)]
     threads: bool,
+    /// A setting for every stage, after the file's `[set]`: a dotted key and a TOML value,
+    /// e.g. `--set seed=4` or `--set push_reward='"none"'`. Repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
+    set: Vec<toml::Table>,
+}
+
+/// `key=value` as the one-entry TOML table it sets (`a.b=1` is `{ a = { b = 1 } }`).
+fn parse_setting(arg: &str) -> Result<toml::Table, String> {
+    let (key, value) = arg
+        .split_once('=')
+        .ok_or_else(|| format!("`{arg}` is not KEY=VALUE"))?;
+    toml::from_str(&format!("{} = {}", key.trim(), value.trim())).map_err(|e| {
+        format!(
+            "`{arg}`: {} (a string value needs TOML quotes: KEY='\"text\"')",
+            e.message()
+        )
+    })
 }
 
 /// A pipeline file.
@@ -90,7 +107,7 @@ impl PipelineFile {
                 }
                 let text = resolve(&config_path, &self.set)?;
                 let origin = format!(
-                    "{} with the [set] of {}",
+                    "{} with the [set] of {} and any --set",
                     config_path.display(),
                     path.display()
                 );
@@ -106,7 +123,10 @@ impl PipelineFile {
 }
 
 pub fn run(args: &PipelineArgs) -> Result<()> {
-    let file = PipelineFile::load(&args.config)?;
+    let mut file = PipelineFile::load(&args.config)?;
+    for setting in &args.set {
+        merge(&mut file.set, setting);
+    }
     // Every stage's config is resolved and checked before the first starts: a typo in stage
     // 3 should not cost the time of stages 1 and 2.
     let stages = file.stages(&args.config)?;
@@ -256,5 +276,24 @@ mod tests {
         )
         .unwrap();
         assert_eq!(table, want);
+    }
+
+    #[test]
+    fn a_command_line_setting_is_a_dotted_key_and_a_toml_value() {
+        let want: toml::Table = toml::from_str("[learning]\nlearning_rate = 5e-4\n").unwrap();
+        assert_eq!(
+            parse_setting("learning.learning_rate = 5e-4").unwrap(),
+            want
+        );
+        assert_eq!(
+            parse_setting("push_reward=\"none\"").unwrap()["push_reward"].as_str(),
+            Some("none")
+        );
+        assert!(parse_setting("seed").unwrap_err().contains("KEY=VALUE"));
+        let error = parse_setting("push_reward=none").unwrap_err();
+        assert!(
+            error.contains("push_reward=none") && error.contains("quotes"),
+            "{error}"
+        );
     }
 }

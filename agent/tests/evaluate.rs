@@ -26,6 +26,7 @@ fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
     let net = QNetConfig {
         trunk_widths: vec![4, 8],
         head_width: 16,
+        ..QNetConfig::default()
     };
     let make = || Agent::new(&net, side, PolicyConfig::default(), Mode::PushGrasp);
     // Untrained nets on the same weights in every worker: seed the weights once.

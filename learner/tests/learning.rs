@@ -183,3 +183,28 @@ fn checkpoints_round_trip_to_identical_q_maps() {
         "{error}"
     );
 }
+
+#[test]
+fn a_net_without_context_convolutions_keeps_the_config_hash_it_had_before_them() {
+    // The net config as it was before `context_dilations` existed.
+    #[derive(serde::Serialize)]
+    struct Before {
+        trunk_widths: Vec<usize>,
+        head_width: usize,
+    }
+    let before = Before {
+        trunk_widths: vec![8, 16],
+        head_width: 64,
+    };
+    let plain = QNetConfig {
+        trunk_widths: vec![8, 16],
+        context_dilations: Vec::new(),
+        head_width: 64,
+    };
+    assert_eq!(config_hash(&plain), config_hash(&before));
+    let wide = QNetConfig {
+        context_dilations: vec![1, 2],
+        ..plain
+    };
+    assert_ne!(config_hash(&wide), config_hash(&before));
+}

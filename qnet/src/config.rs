@@ -10,6 +10,14 @@ pub struct QNetConfig {
     /// that keeps inference on all 16 rotations of both nets under 100 ms at 112 x 112 on two
     /// cores (`pushgrasp bench learner`).
     pub trunk_widths: Vec<usize>,
+    /// Dilations of each trunk's 3x3 stride-1 convolutions after the strided ones, at the
+    /// low resolution and the last width. They widen what a Q value sees (an object, the
+    /// neighbours in the jaws' way) without coarsening the map: two stride-2 layers alone see
+    /// 7 input pixels, and each of these adds 2 x dilation x 2^len(trunk_widths).
+    /// (Left out of the serialised config when empty, so checkpoints of nets without it
+    /// keep their config hash.)
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub context_dilations: Vec<usize>,
     /// Channels of the head's hidden 1x1 convolution (the paper's 64).
     pub head_width: usize,
 }
@@ -18,6 +26,7 @@ impl Default for QNetConfig {
     fn default() -> Self {
         Self {
             trunk_widths: vec![8, 16],
+            context_dilations: Vec::new(),
             head_width: 64,
         }
     }
@@ -43,8 +52,13 @@ impl QNetConfig {
                 *c = width;
             }
         }
-        let features: usize = channels.iter().sum();
         let area = (size * size) as f64;
+        for _ in &self.context_dilations {
+            for c in &channels {
+                flops += 2.0 * area * (c * c * 9) as f64;
+            }
+        }
+        let features: usize = channels.iter().sum();
         flops + 2.0 * area * (features * self.head_width + self.head_width) as f64
     }
 }

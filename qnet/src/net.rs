@@ -8,21 +8,33 @@ use burn::tensor::activation::relu;
 
 use crate::config::QNetConfig;
 
-/// A 3x3 stride-2 convolution, batch norm and ReLU.
+/// A 3x3 convolution (stride 2 to go down, or stride 1 with a dilation to see further),
+/// batch norm and ReLU; padded so only the stride changes the size.
 #[derive(Module, Debug)]
-pub struct DownBlock {
+pub struct ConvBlock {
     conv: Conv2d,
     norm: BatchNorm,
 }
 
-impl DownBlock {
-    fn new(channels_in: usize, channels_out: usize, device: &Device) -> Self {
+impl ConvBlock {
+    fn down(channels_in: usize, channels_out: usize, device: &Device) -> Self {
+        Self::new([channels_in, channels_out], 2, 1, device)
+    }
+
+    fn context(channels: usize, dilation: usize, device: &Device) -> Self {
+        Self::new([channels, channels], 1, dilation, device)
+    }
+
+    fn new(channels: [usize; 2], stride: usize, dilation: usize, device: &Device) -> Self {
         Self {
-            conv: Conv2dConfig::new([channels_in, channels_out], [3, 3])
-                .with_stride([2, 2])
-                .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+            conv: Conv2dConfig::new(channels, [3, 3])
+                .with_stride([stride, stride])
+                .with_dilation([dilation, dilation])
+                .with_padding(PaddingConfig2d::Explicit(
+                    dilation, dilation, dilation, dilation,
+                ))
                 .init(device),
-            norm: BatchNormConfig::new(channels_out).init(device),
+            norm: BatchNormConfig::new(channels[1]).init(device),
         }
     }
 
@@ -31,19 +43,22 @@ impl DownBlock {
     }
 }
 
-/// A stack of down blocks over one kind of input plane.
+/// Down blocks, then context blocks, over one kind of input plane.
 #[derive(Module, Debug)]
 pub struct Trunk {
-    blocks: Vec<DownBlock>,
+    blocks: Vec<ConvBlock>,
 }
 
 impl Trunk {
-    fn new(channels_in: usize, widths: &[usize], device: &Device) -> Self {
-        let mut blocks = Vec::with_capacity(widths.len());
+    fn new(channels_in: usize, config: &QNetConfig, device: &Device) -> Self {
+        let mut blocks = Vec::new();
         let mut channels = channels_in;
-        for &width in widths {
-            blocks.push(DownBlock::new(channels, width, device));
+        for &width in &config.trunk_widths {
+            blocks.push(ConvBlock::down(channels, width, device));
             channels = width;
+        }
+        for &dilation in &config.context_dilations {
+            blocks.push(ConvBlock::context(channels, dilation, device));
         }
         Self { blocks }
     }
@@ -72,9 +87,9 @@ impl PrimitiveNet {
         let last = |planes: usize| widths.last().copied().unwrap_or(planes);
         let features = last(3) + 2 * last(1);
         Self {
-            colour: Trunk::new(3, widths, device),
-            depth: Trunk::new(1, widths, device),
-            mask: Trunk::new(1, widths, device),
+            colour: Trunk::new(3, config, device),
+            depth: Trunk::new(1, config, device),
+            mask: Trunk::new(1, config, device),
             head_norm_in: BatchNormConfig::new(features).init(device),
             head_hidden: Conv2dConfig::new([features, config.head_width], [1, 1]).init(device),
             head_norm_hidden: BatchNormConfig::new(config.head_width).init(device),

@@ -84,3 +84,48 @@ fn weights_round_trip_through_bytes_to_identical_q_maps() {
         .unwrap_err();
     assert!(error.to_string().contains("weights"), "{error}");
 }
+
+/// How far (in pixels along a row) a change of the goal mask reaches into rotation 0's
+/// Q map around pixel (56, 56).
+fn reach(config: &QNetConfig) -> usize {
+    let nets = QNets::new(config, &Device::flex()).valid();
+    let geometry = Geometry::new(112, config);
+    let q = |input: &NetInput| {
+        let maps = nets.q_maps(Primitive::Grasp, &[(input, 0)], &geometry);
+        maps.unwrap().into_data().try_to_vec::<f32>().unwrap()[56 * 112 + 56]
+    };
+    let plain = NetInput {
+        side: 112,
+        colour: vec![0.0; 3 * 112 * 112],
+        depth: vec![0.0; 112 * 112],
+        mask: vec![0.0; 112 * 112],
+    };
+    let base = q(&plain);
+    (1..56)
+        .filter(|&distance| {
+            let mut marked = plain.clone();
+            marked.mask[56 * 112 + 56 + distance] = 1.0;
+            q(&marked) != base
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+#[test]
+fn context_dilations_widen_what_a_q_value_sees() {
+    let local = QNetConfig {
+        context_dilations: Vec::new(),
+        ..QNetConfig::default()
+    };
+    let wide = QNetConfig {
+        context_dilations: vec![1, 2],
+        ..QNetConfig::default()
+    };
+    let (near, far) = (reach(&local), reach(&wide));
+    // Two stride-2 layers see 3 pixels to each side; [1, 2] at stride 4 adds (1 + 2) x 4.
+    assert!(near > 0 && near <= 4, "reach without context: {near}");
+    assert!(
+        far >= near + 12,
+        "reach with context: {far} (without: {near})"
+    );
+}

@@ -47,6 +47,9 @@ pub struct LearnerBenchArgs {
     /// Repetitions of each timed figure (medians are reported).
     #[arg(long, default_value_t = 10)]
     reps: usize,
+    /// Time the nets of this run config's `[net]` (default: the library's default shape).
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
 }
 
 #[derive(Args)]
@@ -231,12 +234,19 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     let reps = args.reps.max(1);
     let backend = qnet::Backend::selected();
     let device = backend.device();
-    let net = QNetConfig::default();
+    let net = match &args.config {
+        Some(path) => crate::run::config::RunConfig::load(path)?.net,
+        None => QNetConfig::default(),
+    };
     let mut figures = serde_json::Map::new();
     figures.insert("backend".into(), backend.name().into());
     figures.insert(
         "trunk_widths".into(),
         serde_json::to_value(&net.trunk_widths)?,
+    );
+    figures.insert(
+        "context_dilations".into(),
+        serde_json::to_value(&net.context_dilations)?,
     );
     for pixel_size in [0.004f32, 0.002] {
         let config = SimConfig::with_pixel_size(pixel_size);
