@@ -106,6 +106,18 @@ fn labels_converge_to_the_fixed_point_q_star_sits_below() {
 }
 
 #[test]
+fn bootstrap_values_are_clamped_to_what_a_state_can_be_worth() {
+    let gamma = LearningConfig::default().gamma;
+    // An overestimated next value counts as the fixed point 1 / (1 - gamma) = 2.
+    assert_eq!(grasp_label(1.0, true, Some(2.9), gamma), 2.0);
+    assert_eq!(grasp_label(1.0, true, Some(-0.3), gamma), 1.0);
+    assert_eq!(push_label(0.0, Some(2.9), gamma), 1.0);
+    // A push's next state may be worth less than nothing (pushes that change nothing).
+    assert_eq!(push_label(0.0, Some(-0.6), gamma), -0.3);
+    assert_eq!(push_label(0.0, Some(-5.0), gamma), -0.5);
+}
+
+#[test]
 fn a_frozen_net_does_not_change_and_refuses_samples() {
     let mut trainer = trainer(TrainedNet::Grasp);
     let push_before = weights(&trainer.inference_nets().push);
