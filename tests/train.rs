@@ -494,25 +494,42 @@ fn a_snapshot_on_request_then_ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_
 }
 
 #[test]
-fn two_runs_at_once_stay_apart() {
+fn runs_at_once_stay_apart_even_with_one_id_in_two_log_directories() {
     let logs = logs();
-    let spawn = |run: &str, actors: &str| {
-        command(
-            logs.path(),
-            &["--actors", actors, "--episodes", "10", "--run-id", run],
-        )
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("pushgrasp starts")
-    };
-    let (mut a, mut b) = (spawn("a", "1"), spawn("b", "2"));
-    for run in [&mut a, &mut b] {
-        assert!(wait_exit(run, Duration::from_secs(300)).success());
+    let other = logs.path().join("other");
+    // (log directory, run id, actors): a pipeline's stages are all `stage<N>`, each in its
+    // pipeline's directory.
+    let runs = [
+        (logs.path(), "a", 1),
+        (logs.path(), "b", 2),
+        (other.as_path(), "a", 2),
+    ];
+    let mut children: Vec<Child> = runs
+        .iter()
+        .map(|&(dir, run, actors)| {
+            command(
+                dir,
+                &[
+                    "--actors",
+                    &actors.to_string(),
+                    "--episodes",
+                    "10",
+                    "--run-id",
+                    run,
+                ],
+            )
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("pushgrasp starts")
+        })
+        .collect();
+    for child in &mut children {
+        assert!(wait_exit(child, Duration::from_secs(300)).success());
     }
-    for (run, actors) in [("a", 1), ("b", 2)] {
-        assert_lossless(logs.path(), run);
-        let streams = summary(logs.path(), run)["buffer"]["streams"].clone();
+    for (dir, run, actors) in runs {
+        assert_lossless(dir, run);
+        let streams = summary(dir, run)["buffer"]["streams"].clone();
         let seen: std::collections::BTreeSet<u64> = streams
             .as_array()
             .unwrap()

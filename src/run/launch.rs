@@ -186,7 +186,7 @@ impl Worker {
 
 /// How the launcher starts roles.
 enum Wiring {
-    Processes { run_id: String },
+    Processes { namespace: String },
     Threads { transport: ChannelTransport },
 }
 
@@ -218,7 +218,7 @@ struct Launcher {
 impl Launcher {
     fn start(&mut self, spec: RoleSpec) -> Result<()> {
         let worker = match &self.wiring {
-            Wiring::Processes { run_id } => {
+            Wiring::Processes { namespace } => {
                 let mut command = Command::new(std::env::current_exe()?);
                 command
                     .arg("role")
@@ -229,7 +229,7 @@ impl Launcher {
                     })
                     .arg("--run-dir")
                     .arg(&self.dir)
-                    .args(["--run-id", run_id]);
+                    .args(["--shm-namespace", namespace]);
                 if self.resume {
                     command.arg("--resume");
                 }
@@ -544,6 +544,19 @@ fn last_error(log: &Path) -> Option<String> {
     )
 }
 
+/// The name a run's shared-memory services go under: its id (what a person reading
+/// `/dev/shm` recognises) and a hash of its directory, so that runs of one id in different
+/// log directories (two pipelines' `stage1`) never see each other's messages.
+fn shm_namespace(run_id: &str, dir: &Path) -> Result<String> {
+    use std::hash::Hasher;
+    let dir = std::fs::canonicalize(dir).with_context(|| format!("{}", dir.display()))?;
+    let mut hasher = fnv::FnvHasher::default();
+    hasher.write(dir.as_os_str().as_encoded_bytes());
+    // Within the transport's 64-character limit on run ids.
+    let id: String = run_id.chars().take(47).collect();
+    Ok(format!("{id}-{:016x}", hasher.finish()))
+}
+
 pub fn train(args: &TrainArgs) -> Result<()> {
     let run_id = match (&args.run_id, args.resume) {
         (Some(id), _) => id.clone(),
@@ -603,12 +616,13 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             Box::new(transport),
         )
     } else {
-        wire::ShmTransport::remove_stale(&run_id)?;
+        let namespace = shm_namespace(&run_id, &dir)?;
+        wire::ShmTransport::remove_stale(&namespace)?;
         (
             Wiring::Processes {
-                run_id: run_id.clone(),
+                namespace: namespace.clone(),
             },
-            Box::new(wire::ShmTransport::new(&run_id, "launcher")?),
+            Box::new(wire::ShmTransport::new(&namespace, "launcher")?),
         )
     };
     let mut status = Inbox::open(transport.as_ref(), Topic::Status)?;

@@ -105,9 +105,9 @@ pub struct RoleArgs {
     /// The run directory (holds the resolved config.toml).
     #[arg(long)]
     run_dir: PathBuf,
-    /// The run id: the namespace of the run's shared-memory services.
+    /// The namespace of the run's shared-memory services (the launcher's `shm_namespace`).
     #[arg(long)]
-    run_id: String,
+    shm_namespace: String,
     #[arg(long)]
     resume: bool,
     /// The actor's index.
@@ -136,7 +136,7 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
             incarnation: args.incarnation,
         }),
     };
-    let transport = wire::ShmTransport::new(&args.run_id, &spec.name())?;
+    let transport = wire::ShmTransport::new(&args.shm_namespace, &spec.name())?;
     launch::run_role(
         &transport,
         spec,
