@@ -2,9 +2,11 @@
 //! checks what it wrote.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use sim::{Arrangement, OriginalOptions};
+
+mod common;
+use common::{pushgrasp_fails, pushgrasp_ok};
 
 /// The paper's challenging case 00, when the original files are here.
 fn original_case_00() -> Option<PathBuf> {
@@ -21,38 +23,6 @@ fn original_case_00() -> Option<PathBuf> {
         return None;
     }
     Some(cases.join("Efficient_goal-oriented_push-grasping_synergy/test-10-obj-00.txt"))
-}
-
-/// Runs `pushgrasp <args>` from the checkout's root.
-fn pushgrasp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("pushgrasp runs")
-}
-
-/// Runs `pushgrasp <args>`, which must succeed, and returns its stdout.
-fn pushgrasp_ok(args: &[&str]) -> String {
-    let output = pushgrasp(args);
-    assert!(
-        output.status.success(),
-        "pushgrasp {args:?} failed ({}):\n{}",
-        output.status,
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout).expect("utf-8 output")
-}
-
-/// Runs `pushgrasp <args>`, which must fail, and returns its stderr.
-fn pushgrasp_fails(args: &[&str]) -> String {
-    let output = pushgrasp(args);
-    assert!(
-        !output.status.success(),
-        "pushgrasp {args:?} should have failed; it printed:\n{}",
-        String::from_utf8_lossy(&output.stdout)
-    );
-    String::from_utf8(output.stderr).expect("utf-8 output")
 }
 
 fn path_arg(path: &Path) -> &str {

@@ -2,33 +2,17 @@
 //! figures for the same seed, and clear errors for what cannot be tested.
 
 use std::path::Path;
-use std::process::{Command, Output};
 
 use serde_json::Value;
 
-fn pushgrasp(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("pushgrasp runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let output = pushgrasp(args);
-    assert!(
-        output.status.success(),
-        "pushgrasp {args:?}:\n{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8_lossy(&output.stdout).into_owned()
-}
+mod common;
+use common::{pushgrasp_fails, pushgrasp_ok};
 
 #[test]
 fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let logs = tempfile::tempdir().unwrap();
     let logs_dir = logs.path().to_str().unwrap();
-    ok(&[
+    pushgrasp_ok(&[
         "train",
         "--config",
         "configs/stage1.toml",
@@ -45,7 +29,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let checkpoint = logs.path().join("eval/checkpoint");
     let checkpoint = checkpoint.to_str().unwrap();
     let eval = |seed: &str| -> Value {
-        serde_json::from_str(&ok(&[
+        serde_json::from_str(&pushgrasp_ok(&[
             "eval",
             "--checkpoint",
             checkpoint,
@@ -80,7 +64,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     assert_eq!(first["average"]["completion"], cases[0]["completion"]);
 
     // The table says the same in words; goal-agnostic runs clear the table.
-    let table = ok(&[
+    let table = pushgrasp_ok(&[
         "eval",
         "--checkpoint",
         checkpoint,
@@ -98,20 +82,15 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     );
 
     // Nothing to test, and a checkpoint that is not one, are refused with the reason.
-    let none = pushgrasp(&["eval", "--checkpoint", checkpoint]);
-    assert!(!none.status.success());
-    assert!(String::from_utf8_lossy(&none.stderr).contains("nothing to test"));
+    let none = pushgrasp_fails(&["eval", "--checkpoint", checkpoint]);
+    assert!(none.contains("nothing to test"), "{none}");
     let missing = Path::new(logs_dir).join("eval/no-such-checkpoint");
-    let bad = pushgrasp(&[
+    let err = pushgrasp_fails(&[
         "eval",
         "--checkpoint",
         missing.to_str().unwrap(),
         "--random",
         "6",
     ]);
-    let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(
-        !bad.status.success() && err.contains("no-such-checkpoint"),
-        "{err}"
-    );
+    assert!(err.contains("no-such-checkpoint"), "{err}");
 }
