@@ -17,4 +17,4 @@ pub use policy::{
     grasp_region, valid_push_starts,
 };
 pub use qmaps::QMaps;
-pub use reward::{PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};
+pub use reward::{GRASP_REWARD, PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

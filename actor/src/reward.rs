@@ -14,10 +14,17 @@ pub const PUSH_REWARD: f32 = 0.5;
 /// to earn [`PUSH_REWARD`]; strictly more than this.
 pub const Q_IMPROVEMENT: f32 = 0.1;
 
-/// Grasp reward R_g: 1 if the goal object itself was grasped, else 0. Grasping another
+/// Reward of a grasp that picked the goal object.
+pub const GRASP_REWARD: f32 = 1.0;
+
+/// Grasp reward R_g: [`GRASP_REWARD`] if the goal object itself was grasped, else 0. Grasping another
 /// object earns nothing here; goal relabelling turns it into a success for that object.
 pub fn grasp_reward(grasped: Option<ObjectId>, goal: ObjectId) -> f32 {
-    if grasped == Some(goal) { 1.0 } else { 0.0 }
+    if grasped == Some(goal) {
+        GRASP_REWARD
+    } else {
+        0.0
+    }
 }
 
 /// Which reward a push earns.

@@ -13,9 +13,11 @@
 //! the labels and lifts the goal's grasp Q far above 2 (measured: a median 2.4 on grasps that
 //! succeeded 70% of the time), so every grasp passes Q* and the policy never pushes.
 
+use actor::{GRASP_REWARD, PUSH_REWARD};
+
 /// The lowest and highest value of any state: the reward bounds over 1 - gamma.
 fn value_bounds(gamma: f32) -> (f32, f32) {
-    (-0.5 / (1.0 - gamma), 1.0 / (1.0 - gamma))
+    (-PUSH_REWARD / (1.0 - gamma), GRASP_REWARD / (1.0 - gamma))
 }
 
 /// The label of a grasp: `reward` plus, after a success, the discounted value of the next

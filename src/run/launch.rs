@@ -552,9 +552,13 @@ fn shm_namespace(run_id: &str, dir: &Path) -> Result<String> {
     let dir = std::fs::canonicalize(dir).with_context(|| format!("{}", dir.display()))?;
     let mut hasher = fnv::FnvHasher::default();
     hasher.write(dir.as_os_str().as_encoded_bytes());
-    // Within the transport's 64-character limit on run ids.
-    let id: String = run_id.chars().take(47).collect();
-    Ok(format!("{id}-{:016x}", hasher.finish()))
+    let hash = format!("{:016x}", hasher.finish());
+    // Within the transport's limit on run ids, the hash and its dash kept whole.
+    let id: String = run_id
+        .chars()
+        .take(wire::MAX_RUN_ID - hash.len() - 1)
+        .collect();
+    Ok(format!("{id}-{hash}"))
 }
 
 pub fn train(args: &TrainArgs) -> Result<()> {

@@ -41,7 +41,7 @@ use crate::transport::{Publisher, Subscriber, Transport};
 const PREFIX: &str = "pushgrasp";
 
 /// Longest run id accepted (iceoryx2 limits node names to 128 bytes).
-const MAX_RUN_ID: usize = 64;
+pub const MAX_RUN_ID: usize = 64;
 
 /// Publishers a topic admits at once: actors restart, and a dead one's port stays until it
 /// is cleaned up.
