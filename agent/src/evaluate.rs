@@ -166,10 +166,10 @@ fn test_run(
         goal,
         actions: Vec::new(),
         objects_left: tabletop.objects().count(),
+        goal_lost: false,
     };
     let mut pushes = 0;
-    while record.actions.len() < max_actions && !record.outcome().decided && on_table(&tabletop) > 0
-    {
+    while record.actions.len() < max_actions && !record.outcome().decided {
         let obs = camera.render(&tabletop);
         let choice = agent
             .decide(&obs, goal, pushes, 0.0, &mut rng)
@@ -185,6 +185,8 @@ fn test_run(
             grasped: outcome.grasped,
         });
         record.objects_left = tabletop.objects().count();
+        record.goal_lost =
+            goal != ANY_OBJECT && outcome.grasped != Some(goal) && tabletop.object(goal).is_none();
     }
     Ok(record)
 }

@@ -1,6 +1,7 @@
 //! The paper's test metrics. A run is complete when the goal object is picked without 10
 //! consecutive failed attempts at grasping it; a grasp of another object is a failed attempt
-//! (it counts the goal only, unlike the original `evaluate.py`). Per case: completion is the
+//! (it counts the goal only, unlike the original `evaluate.py`); a goal pushed off the table
+//! fails the run. Per case: completion is the
 //! share of complete runs; grasp success is goal grasps over grasp attempts, averaged over the
 //! complete runs; motion number is the actions of a complete run, averaged.
 //!
@@ -30,6 +31,10 @@ pub struct RunRecord {
     pub actions: Vec<ActionRecord>,
     /// Objects on the table after the last action (what a goal-agnostic run has left).
     pub objects_left: usize,
+    /// The goal left the table without being grasped (pushed out of the workspace or off
+    /// the table): the run has failed, however many actions remain.
+    #[serde(default)]
+    pub goal_lost: bool,
 }
 
 /// A run judged by the paper's rules.
@@ -86,7 +91,7 @@ impl RunRecord {
         let cleared = clearing && self.objects_left == 0;
         RunOutcome {
             complete: cleared,
-            decided: cleared,
+            decided: cleared || self.goal_lost,
             actions: self.actions.len(),
             grasp_attempts,
             grasp_successes,

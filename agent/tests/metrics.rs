@@ -25,6 +25,7 @@ fn run(actions: Vec<ActionRecord>) -> RunRecord {
         goal: GOAL,
         actions,
         objects_left: 3,
+        goal_lost: false,
     }
 }
 
@@ -34,6 +35,7 @@ fn clearing(actions: Vec<ActionRecord>, objects_left: usize) -> RunRecord {
         goal: ANY_OBJECT,
         actions,
         objects_left,
+        goal_lost: false,
     }
 }
 
@@ -42,6 +44,17 @@ fn pushes_then_the_goal_complete_a_run_counting_every_action() {
     let outcome = run(vec![push(), push(), grasp(Some(GOAL))]).outcome();
     assert!(outcome.complete && outcome.decided);
     assert_eq!((outcome.actions, outcome.grasp_attempts), (3, 1));
+}
+
+#[test]
+fn a_goal_pushed_off_the_table_fails_the_run_at_once() {
+    let outcome = RunRecord {
+        goal_lost: true,
+        ..run(vec![push(), push(), grasp(None)])
+    }
+    .outcome();
+    assert!(!outcome.complete && outcome.decided);
+    assert_eq!(outcome.actions, 3);
 }
 
 #[test]
