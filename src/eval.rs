@@ -6,7 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
-use agent::{Agent, CaseMetrics, EvalConfig, Scene};
+use agent::evaluate::CaseReport;
+use agent::{Agent, CaseMetrics, EvalConfig, RunOutcome, RunRecord, Scene};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use learner::Checkpoint;
@@ -49,6 +50,10 @@ pub struct EvalArgs {
     /// Print one JSON object instead of the table.
     #[arg(long)]
     json: bool,
+    /// Also write every run to this file, one JSON object per line: its case, index, goal,
+    /// outcome and actions (primitive, object grasped, the goal's grasp Q when chosen).
+    #[arg(long, value_name = "FILE")]
+    runs_json: Option<PathBuf>,
 }
 
 #[derive(Serialize)]
@@ -56,6 +61,16 @@ struct CaseRow {
     case: String,
     #[serde(flatten)]
     metrics: CaseMetrics,
+}
+
+/// One line of `--runs-json`.
+#[derive(Serialize)]
+struct RunLine<'a> {
+    case: &'a str,
+    run: usize,
+    outcome: RunOutcome,
+    #[serde(flatten)]
+    record: &'a RunRecord,
 }
 
 #[derive(Serialize)]
@@ -137,6 +152,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         ..EvalConfig::default()
     };
     let reports = agent::evaluate(|| agent.clone(), &cases, &eval)?;
+    if let Some(path) = &args.runs_json {
+        write_runs(path, &reports)?;
+    }
     let arranged: Vec<CaseMetrics> = reports
         .iter()
         .zip(&cases)
@@ -204,6 +222,23 @@ fn print_table(report: &EvalReport) {
     if let Some(average) = &report.average {
         row("arrangements avg", average);
     }
+}
+
+fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {
+    let mut lines = String::new();
+    for report in reports {
+        for (run, record) in report.runs.iter().enumerate() {
+            let line = RunLine {
+                case: &report.name,
+                run,
+                outcome: record.outcome(),
+                record,
+            };
+            lines += &serde_json::to_string(&line)?;
+            lines.push('\n');
+        }
+    }
+    std::fs::write(path, lines).with_context(|| format!("writing {}", path.display()))
 }
 
 /// The `.toml` files named, and those in the directories named, in order.

@@ -28,6 +28,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     ]);
     let checkpoint = logs.path().join("eval/checkpoint");
     let checkpoint = checkpoint.to_str().unwrap();
+    let runs_json = logs.path().join("runs.jsonl");
     let eval = |seed: &str| -> Value {
         serde_json::from_str(&pushgrasp_ok(&[
             "eval",
@@ -42,6 +43,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "--seed",
             seed,
             "--json",
+            "--runs-json",
+            runs_json.to_str().unwrap(),
         ]))
         .unwrap()
     };
@@ -59,6 +62,27 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             case["complete_runs"].as_u64().unwrap() > 0,
             case["motion_number"].is_number()
         );
+    }
+    // Every run is written out, and its outcome agrees with its case's figures.
+    let lines: Vec<Value> = std::fs::read_to_string(&runs_json)
+        .unwrap()
+        .lines()
+        .map(|line| serde_json::from_str(line).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 4);
+    for case in cases {
+        let runs: Vec<&Value> = lines.iter().filter(|l| l["case"] == case["case"]).collect();
+        assert_eq!(runs.len(), 2);
+        let complete = runs.iter().filter(|l| l["outcome"]["complete"] == true);
+        assert_eq!(
+            complete.count() as u64,
+            case["complete_runs"].as_u64().unwrap()
+        );
+        for run in runs {
+            let actions = run["actions"].as_array().unwrap();
+            assert!(!actions.is_empty());
+            assert!(actions.iter().all(|a| a["goal_grasp_q"].is_number()));
+        }
     }
     // The average is the paper's "challenging" column: the arrangements, not random scenes.
     assert_eq!(first["average"]["completion"], cases[0]["completion"]);

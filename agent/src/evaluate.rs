@@ -183,6 +183,7 @@ fn test_run(
         record.actions.push(ActionRecord {
             primitive: action.primitive,
             grasped: outcome.grasped,
+            goal_grasp_q: choice.decision.goal_grasp_q,
         });
         record.objects_left = tabletop.objects().count();
         record.goal_lost =

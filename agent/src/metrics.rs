@@ -21,6 +21,9 @@ pub struct ActionRecord {
     pub primitive: Primitive,
     /// For a grasp: the object it picked, if any.
     pub grasped: Option<ObjectId>,
+    /// The goal's best grasp Q when the action was chosen (the policy's discriminator
+    /// score), to compare the nets' confidence with what then happened.
+    pub goal_grasp_q: f32,
 }
 
 /// What happened in one test run.

@@ -10,6 +10,7 @@ fn push() -> ActionRecord {
     ActionRecord {
         primitive: Primitive::Push,
         grasped: None,
+        goal_grasp_q: 0.0,
     }
 }
 
@@ -17,6 +18,7 @@ fn grasp(grasped: Option<u8>) -> ActionRecord {
     ActionRecord {
         primitive: Primitive::Grasp,
         grasped,
+        goal_grasp_q: 0.0,
     }
 }
 
