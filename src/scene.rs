@@ -25,6 +25,10 @@ pub struct SceneSource {
     /// Seed of the random scene.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Lay this many of the objects side by side in a touching row before dropping the
+    /// others (the scenes of a config's `row_share`).
+    #[arg(long, default_value_t = 0, conflicts_with = "arrangement")]
+    pub row: usize,
     /// An arrangement file (original `.txt` format or our `.toml`) instead of random drops.
     #[arg(long)]
     pub arrangement: Option<PathBuf>,
@@ -59,7 +63,8 @@ impl SceneSource {
                 Ok((tabletop, description))
             }
             None => {
-                let (tabletop, report) = Tabletop::random(&config, self.objects, self.seed)?;
+                let (tabletop, report) =
+                    Tabletop::random_with_row(&config, self.objects, self.row, self.seed)?;
                 let description = format!(
                     "random scene seed {} ({} dropped, settled in {} steps, at rest: {}, left the table: {:?})",
                     self.seed,
@@ -113,7 +118,13 @@ fn render(args: &RenderArgs) -> Result<()> {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "arrangement".into()),
-        None => format!("random-{}-seed{}", args.source.objects, args.source.seed),
+        None => match args.source.row {
+            0 | 1 => format!("random-{}-seed{}", args.source.objects, args.source.seed),
+            row => format!(
+                "random-{}-row{row}-seed{}",
+                args.source.objects, args.source.seed
+            ),
+        },
     };
     println!("{description}");
     for path in pictures::write_heightmaps(&maps, &args.out, &stem)? {

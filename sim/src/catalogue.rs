@@ -12,7 +12,7 @@ use std::f32::consts::PI;
 use std::sync::OnceLock;
 
 use rapier3d::parry::shape::ConvexPolyhedron;
-use rapier3d::prelude::Vector;
+use rapier3d::prelude::{Rotation, Vector};
 use serde::{Deserialize, Serialize};
 
 /// The original set's colours by slot (RGB 0-255): blue, green, brown, orange, yellow, gray,
@@ -34,6 +34,17 @@ pub const SLOT_COLOURS: [[u8; 3]; 10] = [
 pub const BLOCK_DENSITY: f32 = 600.0;
 /// Coulomb friction of blocks against each other and the table (wood on laminate).
 pub const BLOCK_FRICTION: f32 = 0.5;
+
+/// The lowest and highest corner of the axis-aligned box around `points`.
+pub(crate) fn box_around(points: impl Iterator<Item = Vector>) -> (Vector, Vector) {
+    points.fold(
+        (
+            Vector::splat(f32::INFINITY),
+            Vector::splat(f32::NEG_INFINITY),
+        ),
+        |(lo, hi), v| (lo.min(v), hi.max(v)),
+    )
+}
 
 /// The eight shapes, named by what they are; `mesh_name` gives the original file name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -104,14 +115,20 @@ impl ShapeKind {
 
     /// The box around the shape in its body frame: its lowest and highest corner.
     pub fn bounds(self) -> (Vector, Vector) {
-        let points = self.parts().iter().flat_map(|p| p.vertices.iter());
-        points.fold(
-            (
-                Vector::splat(f32::INFINITY),
-                Vector::splat(f32::NEG_INFINITY),
-            ),
-            |(lo, hi), &v| (lo.min(v), hi.max(v)),
-        )
+        self.bounds_turned(Rotation::IDENTITY)
+    }
+
+    /// The axis-aligned box around the shape turned by `rotation` about its origin.
+    pub fn bounds_turned(self, rotation: Rotation) -> (Vector, Vector) {
+        box_around(self.vertices_turned(rotation))
+    }
+
+    /// Every vertex of the shape's parts, turned by `rotation` about its origin.
+    pub fn vertices_turned(self, rotation: Rotation) -> impl Iterator<Item = Vector> {
+        self.parts()
+            .iter()
+            .flat_map(|p| p.vertices.iter())
+            .map(move |&v| rotation * v)
     }
 
     /// The shape's convex parts in its body frame (built once, shared).

@@ -7,7 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::*;
 
 use crate::arrangement::Arrangement;
-use crate::catalogue::{SLOT_COLOURS, ShapeKind};
+use crate::catalogue::{SLOT_COLOURS, ShapeKind, box_around};
 use crate::config::SimConfig;
 use crate::error::SimError;
 use crate::tabletop::{ObjectId, SettleReport, Tabletop};
@@ -34,6 +34,19 @@ impl Tabletop {
         objects: usize,
         seed: u64,
     ) -> Result<(Self, SceneReport), SimError> {
+        Self::random_with_row(config, objects, 0, seed)
+    }
+
+    /// As [`Tabletop::random`], but the first `row` of the `objects` are first laid side by
+    /// side in a line, touching, lying on a face, at a random place and heading (the pattern
+    /// of the paper's challenging arrangements, where the jaws have no room between
+    /// neighbours); the others are then dropped as usual. `row` 0 or 1 is a plain drop.
+    pub fn random_with_row(
+        config: &SimConfig,
+        objects: usize,
+        row: usize,
+        seed: u64,
+    ) -> Result<(Self, SceneReport), SimError> {
         if objects > 255 {
             return Err(SimError::TooManyObjects(objects));
         }
@@ -43,7 +56,18 @@ impl Tabletop {
         let fall_steps = (fall_s * config.physics_hz).ceil() as u32;
         let half = config.drop_square / 2.0;
         let mut dropped = Vec::with_capacity(objects);
-        for k in 0..objects {
+        let row = if row >= 2 { row.min(objects) } else { 0 };
+        if row > 0 {
+            let kinds: Vec<ShapeKind> = (0..row)
+                .map(|_| ShapeKind::ALL[rng.random_range(0..ShapeKind::ALL.len())])
+                .collect();
+            for (k, (kind, pose)) in lay_row(&kinds, half, &mut rng).into_iter().enumerate() {
+                let id = (k + 1) as ObjectId;
+                tabletop.add_object(id, kind, SLOT_COLOURS[k % SLOT_COLOURS.len()], pose)?;
+                dropped.push((id, kind));
+            }
+        }
+        for k in row..objects {
             let id = (k + 1) as ObjectId;
             let kind = ShapeKind::ALL[rng.random_range(0..ShapeKind::ALL.len())];
             let x = workspace::CENTRE[0] + rng.random_range(-half..half);
@@ -79,6 +103,77 @@ impl Tabletop {
         }
         Ok(tabletop)
     }
+}
+
+/// Gap left between neighbours in a row (metres): touching, without starting interpenetrated.
+const ROW_GAP: f32 = 0.0005;
+
+/// Poses that lay `kinds` side by side along a line through a random point within `half` of
+/// the workspace centre, at a random heading: each block lies on one of its six box faces,
+/// turned a random quarter about the vertical, just above the table.
+fn lay_row(kinds: &[ShapeKind], half: f32, rng: &mut ChaCha8Rng) -> Vec<(ShapeKind, Pose)> {
+    const QUARTER: f32 = std::f32::consts::FRAC_PI_2;
+    let faces_down = [
+        Rotation::IDENTITY,
+        Rotation::from_rotation_x(QUARTER),
+        Rotation::from_rotation_x(-QUARTER),
+        Rotation::from_rotation_x(2.0 * QUARTER),
+        Rotation::from_rotation_y(QUARTER),
+        Rotation::from_rotation_y(-QUARTER),
+    ];
+    // Each block in the row's frame (x along the row): its rotation and its box there.
+    let blocks: Vec<(ShapeKind, Rotation, Vector, Vector)> = kinds
+        .iter()
+        .map(|&kind| {
+            let stable: Vec<Rotation> = faces_down
+                .iter()
+                .copied()
+                .filter(|&r| rests_flat(kind, r))
+                .collect();
+            let turn = Rotation::from_rotation_z(QUARTER * rng.random_range(0..4) as f32);
+            let rotation = turn * stable[rng.random_range(0..stable.len())];
+            let (lo, hi) = kind.bounds_turned(rotation);
+            (kind, rotation, lo, hi)
+        })
+        .collect();
+    let length: f32 = blocks
+        .iter()
+        .map(|(_, _, lo, hi)| hi.x - lo.x + ROW_GAP)
+        .sum();
+    let heading = Rotation::from_rotation_z(rng.random_range(0.0..TAU));
+    let centre = Vector::new(
+        workspace::CENTRE[0] + rng.random_range(-half / 2.0..half / 2.0),
+        workspace::CENTRE[1] + rng.random_range(-half / 2.0..half / 2.0),
+        0.0,
+    );
+    let mut start = -length / 2.0;
+    blocks
+        .into_iter()
+        .map(|(kind, rotation, lo, hi)| {
+            let along = Vector::new(start - lo.x, -(lo.y + hi.y) / 2.0, 0.0);
+            start += hi.x - lo.x + ROW_GAP;
+            let position = centre + heading * along + Vector::new(0.0, 0.0, ROW_GAP - lo.z);
+            (kind, Pose::from_parts(position, heading * rotation))
+        })
+        .collect()
+}
+
+/// Whether `kind` turned by `rotation` stands on a flat face: the vertices on its lowest
+/// plane span at least a centimetre both ways, around the middle of its box (so no prism
+/// rests on an edge, nor a cylinder on its side). Every shape rests flat on its base.
+fn rests_flat(kind: ShapeKind, rotation: Rotation) -> bool {
+    const ON_PLANE: f32 = 1e-3;
+    const MIN_SPAN: f32 = 0.01;
+    let (lo, hi) = kind.bounds_turned(rotation);
+    let (foot_lo, foot_hi) = box_around(
+        kind.vertices_turned(rotation)
+            .filter(|v| v.z < lo.z + ON_PLANE),
+    );
+    let middle = (lo + hi) / 2.0;
+    (foot_hi.x - foot_lo.x) >= MIN_SPAN
+        && (foot_hi.y - foot_lo.y) >= MIN_SPAN
+        && (foot_lo.x..=foot_hi.x).contains(&middle.x)
+        && (foot_lo.y..=foot_hi.y).contains(&middle.y)
 }
 
 /// A rotation drawn uniformly over SO(3) (Shoemake's method).

@@ -145,6 +145,50 @@ fn random_scenes_settle_within_the_bound_and_stay_on_the_table() {
     }
 }
 
+/// The least distance, in pixels, between a pixel of object `a` and one of object `b`.
+fn gap_px(maps: &Heightmaps, a: u8, b: u8) -> f32 {
+    let side = maps.side();
+    let pixels = |id: u8| -> Vec<(f32, f32)> {
+        (0..side * side)
+            .filter(|&i| maps.ids[i] == id)
+            .map(|i| ((i / side) as f32, (i % side) as f32))
+            .collect()
+    };
+    let (a, b) = (pixels(a), pixels(b));
+    a.iter()
+        .flat_map(|p| b.iter().map(move |q| (p.0 - q.0).hypot(p.1 - q.1)))
+        .fold(f32::INFINITY, f32::min)
+}
+
+#[test]
+fn a_row_scene_lays_its_first_objects_side_by_side_touching() {
+    let config = SimConfig::default();
+    for seed in 0..8 {
+        let (tabletop, report) = Tabletop::random_with_row(&config, 4, 4, seed).unwrap();
+        assert!(report.settle.at_rest, "seed {seed}: {report:?}");
+        assert_eq!(tabletop.object_count(), 4, "seed {seed}: nothing falls off");
+        let maps = observe(&tabletop);
+        // Neighbours leave no room for a jaw: at most a pixel (2 mm) between them.
+        for k in 1..4 {
+            let gap = gap_px(&maps, k, k + 1);
+            assert!(
+                gap <= 2.0,
+                "seed {seed}: objects {k} and {} {gap} px apart",
+                k + 1
+            );
+        }
+        // Lying on a face: nothing stands on another block.
+        for object in tabletop.objects() {
+            assert!(object.pose.translation.z < 0.051, "seed {seed}: {object:?}");
+        }
+    }
+    // Without a row the scene is the plain random drop, draw for draw.
+    let plain = observe(&Tabletop::random(&config, 6, 3).unwrap().0);
+    let unrowed = observe(&Tabletop::random_with_row(&config, 6, 1, 3).unwrap().0);
+    assert_eq!(plain.ids, unrowed.ids);
+    assert_eq!(plain.height, unrowed.height);
+}
+
 #[test]
 fn nothing_falls_through_the_table_while_acting_in_clutter() {
     let config = SimConfig::default();

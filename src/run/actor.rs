@@ -265,7 +265,10 @@ pub fn run(
     let seed = id.seed(config.seed);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut scene_seed = seed;
-    let (mut tabletop, _) = Tabletop::random(&config.sim, config.objects, scene_seed)?;
+    let new_scene = |seed, rng: &mut ChaCha8Rng| {
+        Tabletop::random_with_row(&config.sim, config.objects, config.rows.draw(rng), seed)
+    };
+    let (mut tabletop, _) = new_scene(scene_seed, &mut rng)?;
     let camera = Camera::new(tabletop.grid());
     let mut pending: Option<Pending> = None;
     let mut failures_in_a_row = 0;
@@ -281,7 +284,7 @@ pub fn run(
                 shipper.ship(p, None)?;
             }
             scene_seed = scene_seed.wrapping_add(1);
-            tabletop = Tabletop::random(&config.sim, config.objects, scene_seed)?.0;
+            tabletop = new_scene(scene_seed, &mut rng)?.0;
             obs = camera.render(&tabletop);
             failures_in_a_row = 0;
         }

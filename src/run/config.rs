@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use buffer::BufferConfig;
 use learner::{LearningConfig, TrainedNet};
 use qnet::QNetConfig;
+use rand::RngExt;
 use serde::{Deserialize, Serialize};
 use sim::SimConfig;
 
@@ -21,6 +22,9 @@ pub struct RunConfig {
     pub objects: usize,
     /// A scene is dropped again once it is empty or after this many failed grasps in a row.
     pub max_failures_per_scene: usize,
+    /// Scenes that start with a touching row of objects.
+    #[serde(default)]
+    pub rows: RowScenes,
     /// Actor processes when `--actors` is not given.
     pub actors: u32,
     /// The run ends once this many episodes have ended (counted by the buffer).
@@ -72,6 +76,40 @@ impl Default for LoggingConfig {
         Self {
             enabled: true,
             image_every: 10,
+        }
+    }
+}
+
+/// Training scenes whose first objects lie side by side in a touching row before the others
+/// drop: the pattern of the paper's challenging arrangements (neighbours leave the jaws no
+/// room until a push separates them), which random drops rarely make. Evaluation's random
+/// scenes never have one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RowScenes {
+    /// Share of new scenes that start with a row (0: the paper's random drops alone).
+    pub share: f64,
+    /// Objects in the row (at most the scene's).
+    pub objects: usize,
+}
+
+impl Default for RowScenes {
+    fn default() -> Self {
+        Self {
+            share: 0.0,
+            objects: 3,
+        }
+    }
+}
+
+impl RowScenes {
+    /// Objects in the next scene's row: `objects` with probability `share`, else 0 (no draw
+    /// at all when `share` is 0, so such runs see the scenes they always saw).
+    pub fn draw(&self, rng: &mut impl rand::Rng) -> usize {
+        if self.share > 0.0 && rng.random_bool(self.share) {
+            self.objects
+        } else {
+            0
         }
     }
 }
@@ -141,6 +179,16 @@ impl RunConfig {
         }
         if self.objects == 0 {
             bail!("objects: must be at least 1");
+        }
+        if !(0.0..=1.0).contains(&self.rows.share) {
+            bail!("rows.share: {} is not in [0, 1]", self.rows.share);
+        }
+        if self.rows.share > 0.0 && !(2..=self.objects).contains(&self.rows.objects) {
+            bail!(
+                "rows.objects: {} is not between 2 and the scene's {} objects",
+                self.rows.objects,
+                self.objects
+            );
         }
         if self.actors == 0 {
             bail!("actors: must be at least 1");
@@ -213,6 +261,31 @@ mod tests {
         assert!((apex.for_actor(0, 1) - 0.4).abs() < 1e-6);
         let middle = apex.for_actor(3, 8);
         assert!(middle < 0.4 && middle > 0.4f32.powi(8));
+    }
+
+    #[test]
+    fn row_scenes_are_drawn_at_their_share_and_checked() {
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(5);
+        let rows = RowScenes {
+            share: 0.25,
+            objects: 3,
+        };
+        let drawn: Vec<usize> = (0..4000).map(|_| rows.draw(&mut rng)).collect();
+        assert!(drawn.iter().all(|&n| n == 0 || n == 3));
+        let share = drawn.iter().filter(|&&n| n == 3).count() as f64 / 4000.0;
+        assert!((share - 0.25).abs() < 0.03, "{share}");
+
+        let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
+        let text = std::fs::read_to_string(stage1).unwrap();
+        let with = |rows: &str| RunConfig::parse(&format!("{text}\n[rows]\n{rows}"), "run.toml");
+        with("share = 0.3\nobjects = 4").unwrap();
+        let err = with("share = 1.5").unwrap_err().to_string();
+        assert!(
+            err.contains("run.toml") && err.contains("rows.share"),
+            "{err}"
+        );
+        let err = with("share = 0.3\nobjects = 9").unwrap_err().to_string();
+        assert!(err.contains("rows.objects"), "{err}");
     }
 
     #[test]
