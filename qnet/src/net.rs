@@ -4,7 +4,9 @@
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
+use burn::tensor::Slice;
 use burn::tensor::activation::relu;
+use burn::tensor::ops::PadMode;
 
 use crate::config::QNetConfig;
 
@@ -39,8 +41,68 @@ impl ConvBlock {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(self.norm.forward(self.conv.forward(x)))
+        relu(self.norm.forward(convolve(&self.conv, x)))
     }
+}
+
+/// `conv` on `x`, by the fastest route for what the result is for. A net in training (its
+/// weights take gradients) goes through [`conv_as_gemm`]; otherwise burn's own `conv2d`,
+/// which is faster forward.
+fn convolve(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    if conv.weight.val().is_require_grad() {
+        conv_as_gemm(conv, x)
+    } else {
+        conv.forward(x)
+    }
+}
+
+/// `conv` (square kernel, stride and dilation, padded to keep the size: the net's every
+/// convolution) as one matrix product of its weights with the input unfolded by strided
+/// slices. Forward it equals burn's `conv2d`; backward, its weight gradient is one GEMM over
+/// the batch's pixels, where burn's generic `conv2d_weight_backward` runs a convolution
+/// whose kernel is the whole output gradient, several times slower at a training step's one
+/// or two items (`pushgrasp bench learner`).
+fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let [n, channels, height, width] = x.dims();
+    let [out_channels, _, k, _] = conv.weight.dims();
+    let (stride, dilation) = (conv.stride[0], conv.dilation[0]);
+    let pad = dilation * (k - 1) / 2;
+    let (out_h, out_w) = ((height - 1) / stride + 1, (width - 1) / stride + 1);
+    let columns = if k == 1 && stride == 1 {
+        x.reshape([n, channels, height * width])
+    } else {
+        let padded = x.pad((pad, pad, pad, pad), PadMode::Constant(0.0));
+        let taps: Vec<Tensor<4>> = (0..k * k)
+            .map(|tap| {
+                let (row, col) = ((tap / k) * dilation, (tap % k) * dilation);
+                let rows = Slice::new(
+                    row as isize,
+                    Some((row + stride * (out_h - 1) + 1) as isize),
+                    stride as isize,
+                );
+                let cols = Slice::new(
+                    col as isize,
+                    Some((col + stride * (out_w - 1) + 1) as isize),
+                    stride as isize,
+                );
+                padded
+                    .clone()
+                    .slice([Slice::full(), Slice::full(), rows, cols])
+                    .reshape([n, channels, 1, out_h * out_w])
+            })
+            .collect();
+        // Rows in the weights' (channel, kernel row, kernel column) order.
+        Tensor::cat(taps, 2).reshape([n, channels * k * k, out_h * out_w])
+    };
+    let weights = conv
+        .weight
+        .val()
+        .reshape([1, out_channels, channels * k * k]);
+    let mut y = weights.matmul(columns);
+    if let Some(bias) = &conv.bias {
+        y = y + bias.val().reshape([1, out_channels, 1]);
+    }
+    y.reshape([n, out_channels, out_h, out_w])
 }
 
 /// Down blocks, then context blocks, over one kind of input plane.
@@ -109,7 +171,10 @@ impl PrimitiveNet {
             1,
         );
         let x = relu(self.head_norm_in.forward(features));
-        let x = relu(self.head_norm_hidden.forward(self.head_hidden.forward(x)));
-        self.head_out.forward(x)
+        let x = relu(
+            self.head_norm_hidden
+                .forward(convolve(&self.head_hidden, x)),
+        );
+        convolve(&self.head_out, x)
     }
 }

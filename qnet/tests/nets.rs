@@ -129,3 +129,39 @@ fn context_dilations_widen_what_a_q_value_sees() {
         "reach with context: {far} (without: {near})"
     );
 }
+
+#[test]
+fn a_net_in_training_gives_the_q_maps_of_the_same_net_frozen() {
+    // A net whose weights take gradients convolves by GEMM (for its fast weight gradients),
+    // a frozen one by burn's conv2d: one function either way, every layer kind included.
+    let config = QNetConfig {
+        context_dilations: vec![1, 2],
+        ..QNetConfig::default()
+    };
+    // As the learner holds them: on the autodiff device, in training.
+    let device = Device::flex();
+    let training = QNets::new(&config, &device)
+        .to_device(&device.autodiff())
+        .train();
+    let frozen = training.clone().no_grad();
+    let geometry = Geometry::new(112, &config);
+    let input = scene_input(2);
+    let items = [(&input, 3u8), (&input, 11u8)];
+    let maps = |nets: &QNets| {
+        nets.q_maps(Primitive::Grasp, &items, &geometry)
+            .unwrap()
+            .into_data()
+            .to_vec::<f32>()
+            .unwrap()
+    };
+    let (a, b) = (maps(&training), maps(&frozen));
+    let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+    let worst = a
+        .iter()
+        .zip(&b)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+    assert!(
+        scale > 0.0 && worst <= 1e-4 * scale,
+        "differ by {worst} of {scale}"
+    );
+}
