@@ -151,7 +151,7 @@ fn a_net_in_training_gives_the_q_maps_of_the_same_net_frozen() {
         nets.q_maps(Primitive::Grasp, &items, &geometry)
             .unwrap()
             .into_data()
-            .to_vec::<f32>()
+            .try_to_vec::<f32>()
             .unwrap()
     };
     let (a, b) = (maps(&training), maps(&frozen));
