@@ -26,7 +26,7 @@ pub struct SceneSource {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Lay this many of the objects side by side in a touching row before dropping the
-    /// others (the scenes of a config's `row_share`).
+    /// others (the scenes a run config's `[rows]` asks for).
     #[arg(long, default_value_t = 0, conflicts_with = "arrangement")]
     pub row: usize,
     /// An arrangement file (original `.txt` format or our `.toml`) instead of random drops.

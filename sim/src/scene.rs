@@ -109,8 +109,9 @@ impl Tabletop {
 const ROW_GAP: f32 = 0.0005;
 
 /// Poses that lay `kinds` side by side along a line through a random point within `half` of
-/// the workspace centre, at a random heading: each block lies on one of its six box faces,
-/// turned a random quarter about the vertical, just above the table.
+/// the workspace centre, at a random heading: each block lies on one of its box faces that
+/// it rests flat on ([`rests_flat`]), turned a random quarter about the vertical, just above
+/// the table.
 fn lay_row(kinds: &[ShapeKind], half: f32, rng: &mut ChaCha8Rng) -> Vec<(ShapeKind, Pose)> {
     const QUARTER: f32 = std::f32::consts::FRAC_PI_2;
     let faces_down = [
