@@ -151,6 +151,32 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
 }
 
 /// `pushgrasp inspect <args>`: its output, or its error.
+#[test]
+fn actors_share_the_buffer_when_the_learner_sets_the_pace() {
+    // Grasp-only episodes are quicker than the learner's updates, so the buffer's rate
+    // limiter holds the actors back: each must still get its steps in.
+    let logs = logs();
+    train_ok(
+        logs.path(),
+        &["--actors", "2", "--episodes", "80", "--run-id", "fair"],
+    );
+    let total = assert_lossless(logs.path(), "fair");
+    let streams = summary(logs.path(), "fair")["buffer"]["streams"].clone();
+    for actor in 0..2 {
+        let steps: u64 = streams
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| u(&s["actor"]) == actor)
+            .map(|s| u(&s["steps"]))
+            .sum();
+        assert!(
+            steps * 5 >= total,
+            "actor {actor} got {steps} of {total} steps in: {streams}"
+        );
+    }
+}
+
 fn inspect_with(args: &[&std::ffi::OsStr]) -> Result<String, String> {
     let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
         .arg("inspect")

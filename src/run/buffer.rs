@@ -313,6 +313,9 @@ pub fn run(
     // The first report says the buffer listens: the launcher starts actors only then.
     status.send(&Message::Status(role.status()))?;
 
+    // A round of steps: what every actor can have waiting in the transport, and one more.
+    let round = (Topic::Steps.buffer() + 1) * config.actors.max(1) as usize;
+    let mut staged: VecDeque<Message> = VecDeque::with_capacity(round);
     let mut actors_stopped = false;
     let mut last_status = Instant::now();
     loop {
@@ -327,9 +330,19 @@ pub fn run(
             }
         }
         // Back-pressure: steps wait in the transport while the learner lags behind, except
-        // when the actors are stopping (what they send must arrive).
+        // when the actors are stopping (what they send must arrive). They are taken in
+        // rounds, all that every actor has waiting, then let in as the rate limiter allows:
+        // iceoryx2 hands out the first publisher's messages first, so taking one at a time
+        // would let in only one actor's steps whenever the learner sets the pace.
         while actors_stopped || stop || role.replay.can_insert(1) {
-            match steps.try_recv()? {
+            if staged.is_empty() {
+                while staged.len() < round
+                    && let Some(message) = steps.try_recv()?
+                {
+                    staged.push_back(message);
+                }
+            }
+            match staged.pop_front() {
                 Some(Message::Step(step)) => role.step(step)?,
                 Some(Message::EpisodeEnd(end)) => {
                     log.json(BUFFER_EPISODE, &end)?;
