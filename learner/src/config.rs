@@ -15,6 +15,10 @@ pub struct LearningConfig {
     pub gamma: f32,
     /// Where the Huber loss turns from quadratic to linear.
     pub huber_delta: f32,
+    /// Polyak averaging: each update moves the published nets (what actors act and
+    /// bootstrap with, and what checkpoints hold) this fraction of the way to the trained
+    /// ones. 1 publishes the trained nets themselves, as the paper.
+    pub polyak_rate: f32,
 }
 
 impl Default for LearningConfig {
@@ -26,6 +30,7 @@ impl Default for LearningConfig {
             beta_2: 0.99,
             gamma: 0.5,
             huber_delta: 1.0,
+            polyak_rate: 1.0,
         }
     }
 }

@@ -1,7 +1,9 @@
 //! The learning rule of pushgrasp: bootstrap labels consistent with Q*, the Huber loss at the
 //! executed pixel only (weighted by the replay's importance-sampling weights), Adam, which
-//! net trains in which stage (the other frozen whole), and checkpoints.
+//! net trains in which stage (the other frozen whole), the published nets (optionally a
+//! Polyak average), and checkpoints.
 
+pub mod averaging;
 pub mod checkpoint;
 pub mod config;
 pub mod error;

@@ -11,6 +11,7 @@ use burn::prelude::*;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use sim::{Action, Primitive, ROTATIONS};
 
+use crate::averaging::polyak_step;
 use crate::config::LearningConfig;
 use crate::error::LearnerError;
 
@@ -57,6 +58,8 @@ pub struct StepReport {
 /// The nets being trained, their optimiser, and which of them learns.
 pub struct Trainer {
     nets: QNets,
+    /// The Polyak average of `nets` in inference form, when the config averages.
+    average: Option<QNets>,
     optimiser: ModuleOptimizer,
     geometry: Geometry,
     config: LearningConfig,
@@ -81,8 +84,10 @@ impl Trainer {
             .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
             .init();
         let nets = nets.to_device(&device.clone().autodiff()).train();
+        let average = (config.polyak_rate < 1.0).then(|| nets.valid());
         let mut trainer = Self {
             nets,
+            average,
             optimiser,
             geometry: Geometry::new(side, net_config),
             config: config.clone(),
@@ -122,10 +127,14 @@ impl Trainer {
         &self.geometry
     }
 
-    /// The nets in inference form (no autodiff, batch norm on its running statistics), for
-    /// the actor and for bootstrap values.
+    /// The nets to publish, in inference form (no autodiff, batch norm on its running
+    /// statistics), for the actor, its bootstrap values and checkpoints: the Polyak average
+    /// when the config averages, else the trained nets.
     pub fn inference_nets(&self) -> QNets {
-        self.nets.valid()
+        match &self.average {
+            Some(average) => average.clone(),
+            None => self.nets.valid(),
+        }
     }
 
     /// One update on a batch of samples of the trained net's primitive.
@@ -180,6 +189,13 @@ impl Trainer {
             .optimiser
             .step(self.config.learning_rate, self.nets.clone(), grads);
         self.updates += 1;
+        if let Some(average) = self.average.take() {
+            self.average = Some(polyak_step(
+                average,
+                &self.nets.valid(),
+                self.config.polyak_rate,
+            ));
+        }
 
         // Report each sample's own rotation (the first of its items).
         let predicted: Vec<f32> = q_values.iter().step_by(per_sample).copied().collect();
@@ -195,10 +211,13 @@ impl Trainer {
         })
     }
 
-    /// Replaces the weights (a resumed checkpoint).
+    /// Replaces the weights (a resumed checkpoint), and restarts any average from them.
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
         self.nets = self.nets.clone().load_bytes(bytes)?;
         self.set_trained(self.trained);
+        if self.average.is_some() {
+            self.average = Some(self.nets.valid());
+        }
         Ok(())
     }
 }

@@ -1,7 +1,7 @@
 //! The learning rule: the loss sees only the executed pixel, frozen nets stay put, labels
 //! converge where Q* expects, checkpoints and weights round-trip, and training learns.
 
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use learner::checkpoint::config_hash;
 use learner::label::{grasp_label, push_label};
@@ -141,6 +141,61 @@ fn a_frozen_net_does_not_change_and_refuses_samples() {
     trainer.train_step(&samples(Primitive::Push, 0.5)).unwrap();
     let grasp_frozen = weights(&trainer.inference_nets().grasp);
     assert_eq!(grasp_after, grasp_frozen);
+}
+
+/// Every float parameter (batch norm running statistics included), in visiting order.
+fn parameters(nets: &QNets) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let values = param.val().into_data().try_to_vec::<f32>().unwrap();
+            self.0.extend(values);
+        }
+    }
+    let mut collect = Collect(Vec::new());
+    nets.visit(&mut collect);
+    collect.0
+}
+
+#[test]
+fn published_nets_are_the_polyak_average_of_the_trained_ones() {
+    let config = QNetConfig::default();
+    let device = Device::flex();
+    let start = QNets::new(&config, &device);
+    let trainer = |polyak_rate: f32| {
+        let learning = LearningConfig {
+            polyak_rate,
+            ..LearningConfig::default()
+        };
+        Trainer::new(
+            start.clone(),
+            &config,
+            112,
+            &learning,
+            TrainedNet::Grasp,
+            &device,
+        )
+    };
+    let (mut plain, mut averaged) = (trainer(1.0), trainer(0.25));
+    let batch = samples(Primitive::Grasp, 1.5);
+    plain.train_step(&batch).unwrap();
+    averaged.train_step(&batch).unwrap();
+
+    let before = parameters(&start);
+    let trained = parameters(&plain.inference_nets());
+    let published = parameters(&averaged.inference_nets());
+    let moved = before.iter().zip(&trained).filter(|(b, t)| b != t).count();
+    assert!(
+        moved > 1000,
+        "one update moves the grasp net ({moved} values moved)"
+    );
+    for (i, ((b, t), p)) in before.iter().zip(&trained).zip(&published).enumerate() {
+        let want = b + 0.25 * (t - b);
+        assert!(
+            (p - want).abs() <= 1e-5 * (1.0 + want.abs()),
+            "value {i}: {p}, want {want}"
+        );
+    }
 }
 
 #[test]
