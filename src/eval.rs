@@ -109,25 +109,18 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             config.side()
         );
     }
-    let mut cases: Vec<(String, Scene)> = Vec::new();
-    for path in arrangement_files(&args.arrangements)? {
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("reading {}", path.display()))?;
-        let arrangement = Arrangement::parse_toml(&text, &path)?;
-        if arrangement.goal.is_none() && !args.goal_agnostic {
-            bail!(
-                "{}: names no goal object (goal = <id>); only --goal-agnostic tests it",
-                path.display()
-            );
-        }
-        let name = arrangement.name.clone().unwrap_or_else(|| {
-            path.file_stem().map_or_else(
-                || path.display().to_string(),
-                |s| s.to_string_lossy().into(),
-            )
-        });
-        cases.push((name, Scene::Arrangement(arrangement)));
-    }
+    let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
+        .into_iter()
+        .map(|(path, name, arrangement)| {
+            if arrangement.goal.is_none() && !args.goal_agnostic {
+                bail!(
+                    "{}: names no goal object (goal = <id>); only --goal-agnostic tests it",
+                    path.display()
+                );
+            }
+            Ok((name, Scene::Arrangement(arrangement)))
+        })
+        .collect::<Result<_>>()?;
     if let Some(objects) = args.random {
         cases.push((format!("random-{objects}"), Scene::Random { objects }));
     }
@@ -242,6 +235,26 @@ fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {
 }
 
 /// The `.toml` files named, and those in the directories named, in order.
+/// The arrangements (our TOML) in `paths`, files or directories of them, each with its file
+/// and its name (the file's `name`, else its stem).
+pub fn named_arrangements(paths: &[PathBuf]) -> Result<Vec<(PathBuf, String, Arrangement)>> {
+    arrangement_files(paths)?
+        .into_iter()
+        .map(|path| {
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            let arrangement = Arrangement::parse_toml(&text, &path)?;
+            let name = arrangement.name.clone().unwrap_or_else(|| {
+                path.file_stem().map_or_else(
+                    || path.display().to_string(),
+                    |s| s.to_string_lossy().into(),
+                )
+            });
+            Ok((path, name, arrangement))
+        })
+        .collect()
+}
+
 fn arrangement_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for path in paths {

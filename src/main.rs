@@ -4,6 +4,7 @@
 mod bench;
 mod episode;
 mod eval;
+mod grasp_map;
 mod inspect;
 mod mask_shape;
 mod pictures;

@@ -1,4 +1,5 @@
-//! `pushgrasp scene`: render scenes to PNGs and convert arrangement files.
+//! `pushgrasp scene`: render scenes to PNGs, convert arrangement files, and try every direct
+//! grasp of an arrangement's goal.
 
 use std::path::PathBuf;
 
@@ -6,7 +7,7 @@ use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use sim::{Arrangement, Camera, OriginalOptions, SimConfig, Tabletop};
 
-use crate::pictures;
+use crate::{grasp_map, pictures};
 
 #[derive(Subcommand)]
 pub enum SceneCommand {
@@ -14,6 +15,8 @@ pub enum SceneCommand {
     Render(RenderArgs),
     /// Convert an original test-case file to our TOML arrangement format (on stdout).
     Convert(ConvertArgs),
+    /// Try every direct grasp of an arrangement's goal in the simulator: how many succeed.
+    Grasps(grasp_map::GraspsArgs),
 }
 
 /// Where a scene comes from: random drops or an arrangement file.
@@ -107,6 +110,7 @@ pub fn run(command: SceneCommand) -> Result<()> {
     match command {
         SceneCommand::Render(args) => render(&args),
         SceneCommand::Convert(args) => convert(&args),
+        SceneCommand::Grasps(args) => grasp_map::run(&args),
     }
 }
 

@@ -3,8 +3,9 @@
 //! parallel over the cores, each judged by [`crate::metrics`].
 //!
 //! The simulator is deterministic, so the runs of a designed arrangement would all be the
-//! same run: each run moves every object by a small seeded jitter (1 mm, 1 degree by default)
-//! before the scene settles, standing in for the run-to-run noise of the paper's simulator.
+//! same run: each run moves every object by a small seeded jitter (1 mm, 1 degree by default;
+//! [`Arrangement::jittered`]) before the scene settles, standing in for the run-to-run noise
+//! of the paper's simulator.
 //!
 //! Goal-agnostic runs ([`EvalConfig::goal_agnostic`]) give the agent every object as its goal
 //! ([`sim::ANY_OBJECT`]) and go on until the table is clear.
@@ -204,13 +205,7 @@ fn build(
                 _ if config.goal_agnostic => ANY_OBJECT,
                 goal => goal.ok_or(RunError::NoGoal)?,
             };
-            let mut jittered = arrangement.clone();
-            for object in &mut jittered.objects {
-                let mut shift = |range: f32| rng.random_range(-range..=range);
-                object.position[0] += shift(config.jitter_m);
-                object.position[1] += shift(config.jitter_m);
-                object.euler_xyz[2] += shift(config.jitter_rad);
-            }
+            let jittered = arrangement.jittered(config.jitter_m, config.jitter_rad, rng);
             let mut tabletop =
                 Tabletop::from_arrangement(&config.sim, &jittered).map_err(RunError::Sim)?;
             tabletop.settle();

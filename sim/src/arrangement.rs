@@ -22,6 +22,7 @@
 
 use std::path::{Path, PathBuf};
 
+use rand::{Rng, RngExt};
 use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -77,6 +78,20 @@ impl PlacedObject {
 }
 
 impl Arrangement {
+    /// A copy with every object shifted by up to `metres` in x and y and turned by up to
+    /// `radians` about the vertical, uniformly: the simulator is deterministic, so this
+    /// stands in for the run-to-run noise of a real scene.
+    pub fn jittered(&self, metres: f32, radians: f32, rng: &mut impl Rng) -> Self {
+        let mut jittered = self.clone();
+        for object in &mut jittered.objects {
+            let mut shift = |range: f32| rng.random_range(-range..=range);
+            object.position[0] += shift(metres);
+            object.position[1] += shift(metres);
+            object.euler_xyz[2] += shift(radians);
+        }
+        jittered
+    }
+
     /// Reads a file: `.toml` as our format, anything else as the original format.
     pub fn read(path: &Path, options: &OriginalOptions) -> Result<Self, ArrangementError> {
         let text = std::fs::read_to_string(path).map_err(|source| ArrangementError::Read {

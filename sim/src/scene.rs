@@ -39,8 +39,8 @@ impl Tabletop {
 
     /// As [`Tabletop::random`], but the first `row` of the `objects` are first laid side by
     /// side in a line, touching, lying on a face, at a random place and heading (the pattern
-    /// of the paper's challenging arrangements, where the jaws have no room between
-    /// neighbours); the others are then dropped as usual. `row` 0 or 1 is a plain drop.
+    /// of the paper's challenging arrangements, where neighbours spoil many of the goal's
+    /// grasps); the others are then dropped as usual. `row` 0 or 1 is a plain drop.
     pub fn random_with_row(
         config: &SimConfig,
         objects: usize,
