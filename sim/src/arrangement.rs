@@ -23,6 +23,7 @@
 use std::path::{Path, PathBuf};
 
 use rand::{Rng, RngExt};
+use rapier3d::glamx;
 use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -87,7 +88,11 @@ impl Arrangement {
             let mut shift = |range: f32| rng.random_range(-range..=range);
             object.position[0] += shift(metres);
             object.position[1] += shift(metres);
-            object.euler_xyz[2] += shift(radians);
+            // About the world's vertical: the file's last Euler angle turns the object about
+            // its own z, which lies flat for most arranged objects and would tilt them.
+            let turned = Rotation::from_rotation_z(shift(radians)) * object.pose().rotation;
+            let (x, y, z) = turned.to_euler(glamx::EulerRot::XYZ);
+            object.euler_xyz = [x, y, z];
         }
         jittered
     }

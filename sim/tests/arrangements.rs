@@ -9,6 +9,8 @@
 use std::f32::consts::FRAC_PI_2;
 use std::path::{Path, PathBuf};
 
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use sim::rapier3d::parry::query;
 use sim::rapier3d::prelude::*;
 use sim::{
@@ -337,6 +339,46 @@ fn toml_round_trips() {
             .unwrap_or_else(|e| panic!("{e}\n{text}"));
         assert_eq!(back, arrangement, "{text}");
     }
+}
+
+#[test]
+fn jitter_shifts_objects_and_turns_them_about_the_vertical() {
+    const SHIFT: f32 = 0.001;
+    const TURN: f32 = 0.1;
+    let arrangement = Arrangement::parse_toml(GOOD_TOML, Path::new("good.toml")).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut largest_turn: f32 = 0.0;
+    for _ in 0..20 {
+        let jittered = arrangement.jittered(SHIFT, TURN, &mut rng);
+        for (before, after) in arrangement.objects.iter().zip(&jittered.objects) {
+            let (p, q) = (before.pose(), after.pose());
+            let moved = q.translation - p.translation;
+            assert!(
+                moved.x.abs() <= SHIFT + 1e-6 && moved.y.abs() <= SHIFT + 1e-6 && moved.z == 0.0
+            );
+            // A turn about the world's vertical leaves every body axis at its height (the
+            // roof lies on its side: a turn about its own z would tilt it).
+            for axis in [Vector::X, Vector::Y, Vector::Z] {
+                let (a, b) = (p.rotation * axis, q.rotation * axis);
+                assert!(
+                    (a.z - b.z).abs() < 1e-4,
+                    "object {}: {a} became {b}",
+                    before.id
+                );
+            }
+            let turn = p.rotation.angle_between(q.rotation);
+            assert!(
+                turn <= TURN + 1e-4,
+                "object {} turned {turn} rad",
+                before.id
+            );
+            largest_turn = largest_turn.max(turn);
+        }
+    }
+    assert!(
+        largest_turn > TURN / 2.0,
+        "the jitter hardly turns: {largest_turn} rad"
+    );
 }
 
 #[test]
