@@ -88,27 +88,12 @@ struct EvalReport {
 }
 
 pub fn run(args: &EvalArgs) -> Result<()> {
-    let config_path = match &args.config {
-        Some(path) => path.clone(),
-        None => args
-            .checkpoint
-            .parent()
-            .map(|run| run.join("config.toml"))
-            .context("--checkpoint has no parent directory; name the config with --config")?,
+    let mode = if args.grasp_only {
+        actor::Mode::GraspOnly
+    } else {
+        actor::Mode::PushGrasp
     };
-    let config = RunConfig::load(&config_path)?;
-    let (manifest, weights) = Checkpoint::at(&args.checkpoint)
-        .load(&config_hash(&config.net))
-        .with_context(|| format!("the nets of {}", config_path.display()))?;
-    if manifest.side != config.side() {
-        bail!(
-            "{}: trained at {} px, but {} gives {} px",
-            args.checkpoint.display(),
-            manifest.side,
-            config_path.display(),
-            config.side()
-        );
-    }
+    let (config, agent, updates) = load_agent(&args.checkpoint, args.config.as_deref(), mode)?;
     let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
         .into_iter()
         .map(|(path, name, arrangement)| {
@@ -127,16 +112,6 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     if cases.is_empty() {
         bail!("nothing to test: give --arrangements and/or --random");
     }
-    let mode = if args.grasp_only {
-        actor::Mode::GraspOnly
-    } else {
-        actor::Mode::PushGrasp
-    };
-    let mut agent = Agent::new(&config.net, config.side(), config.policy.clone(), mode);
-    agent.nets = agent
-        .nets
-        .load_bytes(&weights)
-        .with_context(|| format!("loading {}", args.checkpoint.display()))?;
     let eval = EvalConfig {
         sim: config.sim.clone(),
         runs: args.runs,
@@ -164,7 +139,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         .collect();
     let report = EvalReport {
         checkpoint: args.checkpoint.display().to_string(),
-        updates: manifest.updates,
+        updates,
         runs_per_case: args.runs,
         seed: args.seed,
         mode,
@@ -235,6 +210,41 @@ fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {
 }
 
 /// The `.toml` files named, and those in the directories named, in order.
+/// A checkpoint's nets as an agent in `mode`, with the run config they were trained with
+/// (`config`, else `config.toml` in the checkpoint's run directory) and their update count.
+pub fn load_agent(
+    checkpoint: &Path,
+    config: Option<&Path>,
+    mode: actor::Mode,
+) -> Result<(RunConfig, Agent, u64)> {
+    let config_path = match config {
+        Some(path) => path.to_path_buf(),
+        None => checkpoint
+            .parent()
+            .map(|run| run.join("config.toml"))
+            .context("--checkpoint has no parent directory; name the config with --config")?,
+    };
+    let config = RunConfig::load(&config_path)?;
+    let (manifest, weights) = Checkpoint::at(checkpoint)
+        .load(&config_hash(&config.net))
+        .with_context(|| format!("the nets of {}", config_path.display()))?;
+    if manifest.side != config.side() {
+        bail!(
+            "{}: trained at {} px, but {} gives {} px",
+            checkpoint.display(),
+            manifest.side,
+            config_path.display(),
+            config.side()
+        );
+    }
+    let mut agent = Agent::new(&config.net, config.side(), config.policy.clone(), mode);
+    agent.nets = agent
+        .nets
+        .load_bytes(&weights)
+        .with_context(|| format!("loading {}", checkpoint.display()))?;
+    Ok((config, agent, manifest.updates))
+}
+
 /// The arrangements (our TOML) in `paths`, files or directories of them, each with its file
 /// and its name (the file's `name`, else its stem).
 pub fn named_arrangements(paths: &[PathBuf]) -> Result<Vec<(PathBuf, String, Arrangement)>> {

@@ -2,9 +2,14 @@
 //! each tried in the simulator from the arranged scene (no push before it). A case where none
 //! succeeds needs a push; where some always do, a grasp net that tells them apart picks the
 //! goal at once. The share that succeeds is what a policy grasping the goal at a random
-//! pixel and angle gets.
+//! pixel and angle gets. With a checkpoint, its grasp net is scored against those outcomes:
+//! how well its Q ranks the grasps that always succeed above those that never do, and how
+//! its best-scored grasp fares.
 
 use std::path::PathBuf;
+
+use agent::Agent;
+use qnet::NetInput;
 
 use anyhow::{Result, bail};
 use clap::Args;
@@ -13,18 +18,28 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
-use sim::{Action, Arrangement, Camera, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop};
+use sim::{
+    Action, Arrangement, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop,
+};
 
-use crate::eval::named_arrangements;
+use crate::eval::{load_agent, named_arrangements};
 
 #[derive(Args)]
 pub struct GraspsArgs {
     /// Arrangement files (our TOML, with a goal) or directories of them.
     #[arg(long, num_args = 1.., required = true)]
     arrangements: Vec<PathBuf>,
-    /// Heightmap pixel size in metres (the stage configs: 0.004, 112 x 112).
-    #[arg(long, default_value_t = 0.004)]
+    /// Heightmap pixel size in metres (the stage configs: 0.004, 112 x 112); with
+    /// --checkpoint, the simulator of its run config.
+    #[arg(long, default_value_t = 0.004, conflicts_with = "checkpoint")]
     pixel_size: f32,
+    /// Score this checkpoint's grasp net against the outcomes (a run's `checkpoint/`).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// The config the checkpoint was trained with (default: `config.toml` in its run
+    /// directory).
+    #[arg(long, requires = "checkpoint")]
+    config: Option<PathBuf>,
     /// Try every `stride`-th pixel of the goal's mask, in rows and in columns.
     #[arg(long, default_value_t = 2, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
     stride: usize,
@@ -51,10 +66,31 @@ struct CaseGrasps {
     never: f64,
     /// Share of all tries that picked the goal.
     success: f64,
+    /// With a checkpoint: how its grasp net scores these grasps.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    net: Option<NetScore>,
+}
+
+/// A grasp net's Q on the goal's grasps against their outcomes.
+#[derive(Debug, Serialize)]
+struct NetScore {
+    /// The chance that a grasp that always picks the goal has a higher Q than one that
+    /// never does (0.5: the Q does not tell them apart; ties count half); absent when
+    /// either kind is missing.
+    net_auc: Option<f64>,
+    /// Share of tries of the grasp with the highest Q that picked the goal.
+    net_best: f64,
 }
 
 pub fn run(args: &GraspsArgs) -> Result<()> {
-    let sim = SimConfig::with_pixel_size(args.pixel_size);
+    let (sim, agent) = match &args.checkpoint {
+        Some(checkpoint) => {
+            let (config, agent, _) =
+                load_agent(checkpoint, args.config.as_deref(), actor::Mode::GraspOnly)?;
+            (config.sim, Some(agent))
+        }
+        None => (SimConfig::with_pixel_size(args.pixel_size), None),
+    };
     sim.grid()?;
     let jitter = agent::EvalConfig::default();
     let mut cases = Vec::new();
@@ -69,7 +105,10 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         let copies: Vec<Arrangement> = (0..args.jitters)
             .map(|_| arrangement.jittered(jitter.jitter_m, jitter.jitter_rad, &mut rng))
             .collect();
-        let candidates = candidates(&sim, &arrangement, goal, args.stride)?;
+        let mut tabletop = Tabletop::from_arrangement(&sim, &arrangement)?;
+        tabletop.settle();
+        let maps = Camera::new(tabletop.grid()).render(&tabletop);
+        let candidates = candidates(&maps, goal, args.stride);
         if candidates.is_empty() {
             bail!(
                 "{}: the goal, object {goal}, is not seen from above once the scene settles",
@@ -85,6 +124,17 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
                     .sum::<Result<usize>>()
             })
             .collect::<Result<_>>()?;
+        let net = match &agent {
+            Some(agent) => Some(score_net(
+                agent,
+                &maps,
+                goal,
+                &candidates,
+                &picks,
+                args.jitters,
+            )?),
+            None => None,
+        };
         let share = |count: usize| count as f64 / candidates.len() as f64;
         cases.push(CaseGrasps {
             case: name,
@@ -93,6 +143,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
             always: share(picks.iter().filter(|&&p| p == args.jitters).count()),
             never: share(picks.iter().filter(|&&p| p == 0).count()),
             success: share(picks.iter().sum()) / args.jitters as f64,
+            net,
         });
     }
     if args.json {
@@ -106,20 +157,12 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
     Ok(())
 }
 
-/// Grasps at every `stride`-th pixel of the goal's mask in the settled, unjittered scene,
-/// at each of the distinct jaw angles.
-fn candidates(
-    sim: &SimConfig,
-    arrangement: &Arrangement,
-    goal: ObjectId,
-    stride: usize,
-) -> Result<Vec<Action>> {
-    let mut tabletop = Tabletop::from_arrangement(sim, arrangement)?;
-    tabletop.settle();
-    let maps = Camera::new(tabletop.grid()).render(&tabletop);
+/// Grasps at every `stride`-th pixel of the goal's mask in `maps`, at each of the distinct
+/// jaw angles.
+fn candidates(maps: &Heightmaps, goal: ObjectId, stride: usize) -> Vec<Action> {
     let side = maps.side();
     let mask = maps.goal_mask(goal);
-    Ok((0..mask.len())
+    (0..mask.len())
         .filter(|&i| {
             mask[i] && (i / side).is_multiple_of(stride) && (i % side).is_multiple_of(stride)
         })
@@ -131,7 +174,47 @@ fn candidates(
                 col: i % side,
             })
         })
-        .collect())
+        .collect()
+}
+
+/// The grasp net's Q for each candidate on `maps` (the better of its two jaw angles, k and
+/// k + 8, which are the same grasp) against how many of `jitters` tries picked the goal.
+fn score_net(
+    agent: &Agent,
+    maps: &Heightmaps,
+    goal: ObjectId,
+    candidates: &[Action],
+    picks: &[usize],
+    jitters: usize,
+) -> Result<NetScore> {
+    let q_maps = agent.nets.all_rotations(
+        Primitive::Grasp,
+        &NetInput::encode(maps, goal),
+        &agent.geometry,
+    )?;
+    let q: Vec<f32> = candidates
+        .iter()
+        .map(|a| {
+            let opposite = a.rotation + ROTATIONS / 2;
+            q_maps
+                .get(a.rotation, a.row, a.col)
+                .max(q_maps.get(opposite, a.row, a.col))
+        })
+        .collect();
+    let with = |n: usize| -> Vec<f32> {
+        q.iter()
+            .zip(picks)
+            .filter(|(_, p)| **p == n)
+            .map(|(q, _)| *q)
+            .collect()
+    };
+    let best = (0..q.len())
+        .max_by(|&i, &j| q[i].total_cmp(&q[j]))
+        .expect("candidates");
+    Ok(NetScore {
+        net_auc: auc(&with(jitters), &with(0)),
+        net_best: picks[best] as f64 / jitters as f64,
+    })
 }
 
 /// Whether `action` on the settled scene of `arrangement` lifts the goal.
@@ -147,6 +230,23 @@ fn picks_goal(
     Ok(tabletop.act(action, &maps)?.grasped == Some(goal))
 }
 
+/// The chance that a value drawn from `higher` exceeds one drawn from `lower`, ties
+/// counting half (the area under the ROC curve); `None` when either is empty.
+fn auc(higher: &[f32], lower: &[f32]) -> Option<f64> {
+    let pairs = (higher.len() * lower.len()) as f64;
+    let wins: f64 = higher
+        .iter()
+        .flat_map(|h| {
+            lower.iter().map(move |l| match h.total_cmp(l) {
+                std::cmp::Ordering::Greater => 1.0,
+                std::cmp::Ordering::Equal => 0.5,
+                std::cmp::Ordering::Less => 0.0,
+            })
+        })
+        .sum();
+    (pairs > 0.0).then(|| wins / pairs)
+}
+
 fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
     println!(
         "Direct grasps of the goal: every {} px of its mask x {} jaw angles, each on {} jittered copies",
@@ -154,31 +254,72 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
         ROTATIONS / 2,
         args.jitters
     );
+    let percent = |share: f64| format!("{:.1}%", 100.0 * share);
+    let row =
+        |case: &str, goal: &str, candidates: &str, shares: [f64; 3], net: Option<[String; 2]>| {
+            let [always, never, success] = shares.map(percent);
+            let net = net.map_or(String::new(), |[auc, best]| format!(" {auc:>8} {best:>9}"));
+            println!(
+                "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{net}"
+            );
+        };
+    let scored = cases.iter().any(|c| c.net.is_some());
+    let header = if scored {
+        format!(" {:>8} {:>9}", "net AUC", "net best")
+    } else {
+        String::new()
+    };
     println!(
-        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}",
+        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}{header}",
         "case", "goal", "candidates", "always", "never", "success"
     );
-    let percent = |share: f64| format!("{:.1}%", 100.0 * share);
+    let auc = |auc: Option<f64>| auc.map_or("-".into(), |a| format!("{a:.2}"));
     for case in cases {
-        println!(
-            "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}",
-            case.case,
-            case.goal,
-            case.candidates,
-            percent(case.always),
-            percent(case.never),
-            percent(case.success)
+        row(
+            &case.case,
+            &case.goal.to_string(),
+            &case.candidates.to_string(),
+            [case.always, case.never, case.success],
+            case.net
+                .as_ref()
+                .map(|n| [auc(n.net_auc), percent(n.net_best)]),
         );
     }
-    let n = cases.len() as f64;
-    let mean = |field: fn(&CaseGrasps) -> f64| cases.iter().map(field).sum::<f64>() / n;
-    println!(
-        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}",
+    let mean = |field: &dyn Fn(&CaseGrasps) -> Option<f64>| {
+        let values: Vec<f64> = cases.iter().filter_map(field).collect();
+        (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+    };
+    let net = scored.then(|| {
+        [
+            auc(mean(&|c| c.net.as_ref().and_then(|n| n.net_auc))),
+            percent(mean(&|c| c.net.as_ref().map(|n| n.net_best)).unwrap_or(0.0)),
+        ]
+    });
+    let share = |field: fn(&CaseGrasps) -> f64| mean(&|c| Some(field(c))).unwrap_or(0.0);
+    row(
         "average",
         "",
         "",
-        percent(mean(|c| c.always)),
-        percent(mean(|c| c.never)),
-        percent(mean(|c| c.success))
+        [
+            share(|c| c.always),
+            share(|c| c.never),
+            share(|c| c.success),
+        ],
+        net,
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::auc;
+
+    #[test]
+    fn auc_is_the_share_of_pairs_ranked_right() {
+        assert_eq!(auc(&[2.0, 3.0], &[0.0, 1.0]), Some(1.0));
+        assert_eq!(auc(&[0.0, 1.0], &[2.0, 3.0]), Some(0.0));
+        assert_eq!(auc(&[1.0], &[1.0]), Some(0.5));
+        // 2 > 1, 2 < 3; 0 < 1, 0 < 3: one pair of four.
+        assert_eq!(auc(&[2.0, 0.0], &[1.0, 3.0]), Some(0.25));
+        assert_eq!(auc(&[], &[1.0]), None);
+    }
 }

@@ -1,5 +1,6 @@
 //! `pushgrasp eval` on a checkpoint of a short real run: the paper's table as JSON, the same
-//! figures for the same seed, and clear errors for what cannot be tested.
+//! figures for the same seed, and clear errors for what cannot be tested; `scene grasps`
+//! scores the same checkpoint's grasp net.
 
 use std::path::Path;
 
@@ -104,6 +105,30 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             && table.contains("goal-agnostic"),
         "{table}"
     );
+
+    // The same checkpoint's grasp net scored against every direct grasp of the goal.
+    let grasps: Value = serde_json::from_str(&pushgrasp_ok(&[
+        "scene",
+        "grasps",
+        "--arrangements",
+        "configs/arrangements/challenging-05.toml",
+        "--stride",
+        "4",
+        "--jitters",
+        "1",
+        "--checkpoint",
+        checkpoint,
+        "--json",
+    ]))
+    .unwrap();
+    let case = &grasps["cases"][0];
+    assert!(
+        (0.0..=1.0).contains(&case["net_auc"].as_f64().unwrap()),
+        "{grasps}"
+    );
+    // One try per grasp: the best-scored grasp picked the goal or it did not.
+    let best = case["net_best"].as_f64().unwrap();
+    assert!(best == 0.0 || best == 1.0, "{grasps}");
 
     // Nothing to test, and a checkpoint that is not one, are refused with the reason.
     let none = pushgrasp_fails(&["eval", "--checkpoint", checkpoint]);
