@@ -99,29 +99,15 @@ fn scene_render_reports_a_malformed_arrangement_with_its_line() {
     );
 }
 
-/// A lone flat bar, 0.10 m long along x and 0.05 m wide: jaws that open 0.10 m close on
-/// it across its width, not along its length.
-const LONE_BAR: &str = r#"
-goal = 1
-
-[[objects]]
-id = 1
-shape = "bar"
-colour = [78, 121, 167]
-position = [-0.5, 0.0, 0.0125]
-euler_xyz = [0.0, 1.5707964, 0.0]
-"#;
-
 #[test]
 fn scene_grasps_tells_grasps_that_fit_the_jaws_from_those_that_do_not() {
-    let dir = tempfile::tempdir().unwrap();
-    let bar = dir.path().join("bar.toml");
-    std::fs::write(&bar, LONE_BAR).unwrap();
+    // A lone bar as long as the jaws open wide: they close across it, not along it.
+    let bar = "configs/probes/lone-bar.toml";
     let stdout = pushgrasp_ok(&[
         "scene",
         "grasps",
         "--arrangements",
-        path_arg(&bar),
+        bar,
         "--stride",
         "3",
         "--jitters",
@@ -130,7 +116,7 @@ fn scene_grasps_tells_grasps_that_fit_the_jaws_from_those_that_do_not() {
     ]);
     let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     let case = &report["cases"][0];
-    assert_eq!(case["case"], "bar", "{stdout}");
+    assert_eq!(case["case"], "lone-bar", "{stdout}");
     let candidates = case["candidates"].as_u64().unwrap();
     assert!(candidates > 0 && candidates.is_multiple_of(8), "{stdout}");
     let (always, never) = (
@@ -142,8 +128,10 @@ fn scene_grasps_tells_grasps_that_fit_the_jaws_from_those_that_do_not() {
         "some grasps fit, some do not: {stdout}"
     );
 
+    let dir = tempfile::tempdir().unwrap();
     let no_goal = dir.path().join("no-goal.toml");
-    std::fs::write(&no_goal, LONE_BAR.replace("goal = 1", "")).unwrap();
+    let text = std::fs::read_to_string(bar).unwrap();
+    std::fs::write(&no_goal, text.replace("goal = 1", "")).unwrap();
     let stderr = pushgrasp_fails(&["scene", "grasps", "--arrangements", path_arg(&no_goal)]);
     assert!(
         stderr.contains("no-goal.toml") && stderr.contains("names no goal"),
