@@ -91,8 +91,10 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         }
         None => (SimConfig::with_pixel_size(args.pixel_size), None),
     };
+    // A pixel size with no grid fails here, before any scene is built.
     sim.grid()?;
-    let jitter = agent::EvalConfig::default();
+    // The copies move as eval's runs do.
+    let eval = agent::EvalConfig::default();
     let mut cases = Vec::new();
     for (index, (path, name, arrangement)) in named_arrangements(&args.arrangements)?
         .into_iter()
@@ -103,7 +105,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         };
         let mut rng = ChaCha8Rng::seed_from_u64(args.seed.wrapping_add(index as u64));
         let copies: Vec<Arrangement> = (0..args.jitters)
-            .map(|_| arrangement.jittered(jitter.jitter_m, jitter.jitter_rad, &mut rng))
+            .map(|_| arrangement.jittered(eval.jitter_m, eval.jitter_rad, &mut rng))
             .collect();
         let mut tabletop = Tabletop::from_arrangement(&sim, &arrangement)?;
         tabletop.settle();
