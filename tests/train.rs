@@ -150,7 +150,6 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
     assert!(assert_lossless(logs.path(), "shm") >= 16);
 }
 
-/// `pushgrasp inspect <args>`: its output, or its error.
 #[test]
 fn actors_share_the_buffer_when_the_learner_sets_the_pace() {
     // Grasp-only episodes are quicker than the learner's updates, so the buffer's rate
@@ -177,6 +176,7 @@ fn actors_share_the_buffer_when_the_learner_sets_the_pace() {
     }
 }
 
+/// `pushgrasp inspect <args>`: its output, or its error.
 fn inspect_with(args: &[&std::ffi::OsStr]) -> Result<String, String> {
     let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
         .arg("inspect")
