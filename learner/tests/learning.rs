@@ -252,7 +252,7 @@ fn checkpoints_round_trip_to_identical_q_maps() {
 }
 
 #[test]
-fn a_net_without_context_convolutions_keeps_the_config_hash_it_had_before_them() {
+fn a_net_without_context_convolutions_or_fusion_keeps_the_config_hash_it_had_before_them() {
     // The net config as it was before `context_dilations` existed.
     #[derive(serde::Serialize)]
     struct Before {
@@ -266,6 +266,7 @@ fn a_net_without_context_convolutions_keeps_the_config_hash_it_had_before_them()
     let plain = QNetConfig {
         trunk_widths: vec![8, 16],
         context_dilations: Vec::new(),
+        fuse_context: false,
         head_width: 64,
     };
     assert_eq!(config_hash(&plain), config_hash(&before));
@@ -274,4 +275,9 @@ fn a_net_without_context_convolutions_keeps_the_config_hash_it_had_before_them()
         ..plain
     };
     assert_ne!(config_hash(&wide), config_hash(&before));
+    let fused = QNetConfig {
+        fuse_context: true,
+        ..wide.clone()
+    };
+    assert_ne!(config_hash(&fused), config_hash(&wide));
 }

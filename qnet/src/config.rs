@@ -18,6 +18,13 @@ pub struct QNetConfig {
     /// keep their config hash.)
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub context_dilations: Vec<usize>,
+    /// Run the context convolutions once over the three trunks' features side by side
+    /// instead of in each trunk: a Q value then sees where the goal's mask lies beside the
+    /// heights around it (the neighbours in the jaws' way), where separate trunks meet only
+    /// in the head's 1x1 convolutions, pixel by pixel. (Left out of the serialised config
+    /// when off.)
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub fuse_context: bool,
     /// Channels of the head's hidden 1x1 convolution (the paper's 64).
     pub head_width: usize,
 }
@@ -27,6 +34,7 @@ impl Default for QNetConfig {
         Self {
             trunk_widths: vec![8, 16],
             context_dilations: Vec::new(),
+            fuse_context: false,
             head_width: 64,
         }
     }
@@ -53,12 +61,17 @@ impl QNetConfig {
             }
         }
         let area = (size * size) as f64;
+        let features: usize = channels.iter().sum();
+        let context_channels = if self.fuse_context {
+            vec![features]
+        } else {
+            channels.to_vec()
+        };
         for _ in &self.context_dilations {
-            for c in &channels {
+            for c in &context_channels {
                 flops += 2.0 * area * (c * c * 9) as f64;
             }
         }
-        let features: usize = channels.iter().sum();
         flops + 2.0 * area * (features * self.head_width + self.head_width) as f64
     }
 }

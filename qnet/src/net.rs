@@ -1,5 +1,6 @@
 //! One primitive's Q-network: parallel trunks for colour, depth and goal mask, concatenated,
-//! then the paper's head (BN, ReLU, 1x1 conv to 64, BN, ReLU, 1x1 conv to 1).
+//! (optionally context convolutions over them together), then the paper's head (BN, ReLU,
+//! 1x1 conv to 64, BN, ReLU, 1x1 conv to 1).
 
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
@@ -105,13 +106,15 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     y.reshape([n, out_channels, out_h, out_w])
 }
 
-/// Down blocks, then context blocks, over one kind of input plane.
+/// Blocks applied in turn.
 #[derive(Module, Debug)]
 pub struct Trunk {
     blocks: Vec<ConvBlock>,
 }
 
 impl Trunk {
+    /// Down blocks over one kind of input plane, then its context blocks unless the config
+    /// fuses them.
     fn new(channels_in: usize, config: &QNetConfig, device: &Device) -> Self {
         let mut blocks = Vec::new();
         let mut channels = channels_in;
@@ -119,9 +122,19 @@ impl Trunk {
             blocks.push(ConvBlock::down(channels, width, device));
             channels = width;
         }
-        for &dilation in &config.context_dilations {
-            blocks.push(ConvBlock::context(channels, dilation, device));
+        if !config.fuse_context {
+            blocks.extend(Self::context(channels, config, device).blocks);
         }
+        Self { blocks }
+    }
+
+    /// The config's context blocks alone, over `channels` features.
+    fn context(channels: usize, config: &QNetConfig, device: &Device) -> Self {
+        let blocks = config
+            .context_dilations
+            .iter()
+            .map(|&dilation| ConvBlock::context(channels, dilation, device))
+            .collect();
         Self { blocks }
     }
 
@@ -136,6 +149,8 @@ pub struct PrimitiveNet {
     colour: Trunk,
     depth: Trunk,
     mask: Trunk,
+    /// Context blocks over the trunks' features together (none unless `fuse_context`).
+    fused: Trunk,
     head_norm_in: BatchNorm,
     head_hidden: Conv2d,
     head_norm_hidden: BatchNorm,
@@ -152,6 +167,11 @@ impl PrimitiveNet {
             colour: Trunk::new(3, config, device),
             depth: Trunk::new(1, config, device),
             mask: Trunk::new(1, config, device),
+            fused: if config.fuse_context {
+                Trunk::context(features, config, device)
+            } else {
+                Trunk { blocks: Vec::new() }
+            },
             head_norm_in: BatchNormConfig::new(features).init(device),
             head_hidden: Conv2dConfig::new([features, config.head_width], [1, 1]).init(device),
             head_norm_hidden: BatchNormConfig::new(config.head_width).init(device),
@@ -170,7 +190,7 @@ impl PrimitiveNet {
             ],
             1,
         );
-        let x = relu(self.head_norm_in.forward(features));
+        let x = relu(self.head_norm_in.forward(self.fused.forward(features)));
         let x = relu(
             self.head_norm_hidden
                 .forward(convolve(&self.head_hidden, x)),

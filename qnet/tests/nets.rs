@@ -121,6 +121,10 @@ fn context_dilations_widen_what_a_q_value_sees() {
         context_dilations: vec![1, 2],
         ..QNetConfig::default()
     };
+    let fused = QNetConfig {
+        fuse_context: true,
+        ..wide.clone()
+    };
     let (near, far) = (reach(&local), reach(&wide));
     // Two stride-2 layers see 3 pixels to each side; [1, 2] at stride 4 adds (1 + 2) x 4.
     assert!(near > 0 && near <= 4, "reach without context: {near}");
@@ -128,23 +132,32 @@ fn context_dilations_widen_what_a_q_value_sees() {
         far >= near + 12,
         "reach with context: {far} (without: {near})"
     );
+    // Context convolutions over the trunks together see as far as each trunk's own.
+    assert_eq!(reach(&fused), far);
 }
 
 #[test]
 fn a_net_in_training_gives_the_q_maps_of_the_same_net_frozen() {
     // A net whose weights take gradients convolves by GEMM (for its fast weight gradients),
     // a frozen one by burn's conv2d: one function either way, every layer kind included.
-    let config = QNetConfig {
-        context_dilations: vec![1, 2],
-        ..QNetConfig::default()
-    };
+    for fuse_context in [false, true] {
+        let config = QNetConfig {
+            context_dilations: vec![1, 2],
+            fuse_context,
+            ..QNetConfig::default()
+        };
+        training_and_frozen_agree(&config);
+    }
+}
+
+fn training_and_frozen_agree(config: &QNetConfig) {
     // As the learner holds them: on the autodiff device, in training.
     let device = Device::flex();
-    let training = QNets::new(&config, &device)
+    let training = QNets::new(config, &device)
         .to_device(&device.autodiff())
         .train();
     let frozen = training.clone().no_grad();
-    let geometry = Geometry::new(112, &config);
+    let geometry = Geometry::new(112, config);
     let input = scene_input(2);
     let items = [(&input, 3u8), (&input, 11u8)];
     let maps = |nets: &QNets| {

@@ -248,6 +248,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         "context_dilations".into(),
         serde_json::to_value(&net.context_dilations)?,
     );
+    figures.insert("fuse_context".into(), net.fuse_context.into());
     for pixel_size in [0.004f32, 0.002] {
         let config = SimConfig::with_pixel_size(pixel_size);
         let (tabletop, _) = Tabletop::random(&config, 10, 0)?;
