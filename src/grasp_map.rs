@@ -14,7 +14,7 @@ use qnet::NetInput;
 use anyhow::{Result, bail};
 use clap::Args;
 use clap::builder::RangedU64ValueParser;
-use rand::SeedableRng;
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -24,11 +24,27 @@ use sim::{
 
 use crate::eval::{load_agent, named_arrangements};
 
+/// Random scenes' seeds start here (plus `--seed`), apart from the jitter seeds of the
+/// case list, which count up from `--seed`.
+const RANDOM_SCENE_SEEDS: u64 = 1 << 32;
+
 #[derive(Args)]
+#[command(group(clap::ArgGroup::new("scenes").args(["arrangements", "random"]).required(true).multiple(true)))]
 pub struct GraspsArgs {
     /// Arrangement files (our TOML, with a goal) or directories of them.
-    #[arg(long, num_args = 1.., required = true)]
+    #[arg(long, num_args = 1..)]
     arrangements: Vec<PathBuf>,
+    /// Also this many random scenes, as training drops them (`--objects` each), with a
+    /// visible object drawn as the goal: how the net does on the scenes it learns from.
+    #[arg(long, default_value_t = 0)]
+    random: usize,
+    /// Objects dropped in each random scene (stage 1 drops 5, stages 2 and 3 drop 10).
+    #[arg(long, default_value_t = 10, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
+    objects: usize,
+    /// Lay this many of each random scene's objects in a touching row first (a run
+    /// config's `[rows]` scenes); the goal is then one of the row.
+    #[arg(long, default_value_t = 0)]
+    row: usize,
     /// Heightmap pixel size in metres (the stage configs: 0.004, 112 x 112); with
     /// --checkpoint, the simulator of its run config.
     #[arg(long, default_value_t = 0.004, conflicts_with = "checkpoint")]
@@ -46,7 +62,8 @@ pub struct GraspsArgs {
     /// Copies of the scene each grasp is tried on, jittered as eval's runs are (1 mm, 1 degree).
     #[arg(long, default_value_t = 4, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
     jitters: usize,
-    /// The jitter derives from this seed and the case's place in the list.
+    /// The jitter derives from this seed and the case's place in the list, and so do the
+    /// random scenes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Print one JSON object instead of the table.
@@ -95,13 +112,38 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
     sim.grid()?;
     // The copies move as eval's runs do.
     let eval = agent::EvalConfig::default();
-    let mut cases = Vec::new();
-    for (index, (path, name, arrangement)) in named_arrangements(&args.arrangements)?
+    let mut scenes: Vec<(String, String, Arrangement)> = named_arrangements(&args.arrangements)?
         .into_iter()
-        .enumerate()
-    {
+        .map(|(path, name, arrangement)| (path.display().to_string(), name, arrangement))
+        .collect();
+    for index in 0..args.random {
+        let name = match args.row {
+            0 => format!("random-{}-{index}", args.objects),
+            row => format!("random-{}-row-{row}-{index}", args.objects),
+        };
+        let seed = args
+            .seed
+            .wrapping_add(RANDOM_SCENE_SEEDS)
+            .wrapping_add(index as u64);
+        let (tabletop, _) = Tabletop::random_with_row(&sim, args.objects, args.row, seed)?;
+        // With a row, the goal is one of the row's blocks (ids 1 to `row`).
+        let visible: Vec<ObjectId> = Camera::new(tabletop.grid())
+            .render(&tabletop)
+            .visible_ids()
+            .into_iter()
+            .filter(|&id| args.row < 2 || usize::from(id) <= args.row)
+            .collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {
+            bail!("{name} (seed {seed}): no object is seen from above");
+        };
+        let arrangement = tabletop.to_arrangement(Some(name.clone()), Some(goal));
+        scenes.push((name.clone(), name, arrangement));
+    }
+    let mut cases = Vec::new();
+    for (index, (source, name, arrangement)) in scenes.into_iter().enumerate() {
         let Some(goal) = arrangement.goal else {
-            bail!("{}: names no goal object (goal = <id>)", path.display());
+            bail!("{source}: names no goal object (goal = <id>)");
         };
         let mut rng = ChaCha8Rng::seed_from_u64(args.seed.wrapping_add(index as u64));
         let copies: Vec<Arrangement> = (0..args.jitters)
@@ -113,8 +155,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         let candidates = candidates(&maps, goal, args.stride);
         if candidates.is_empty() {
             bail!(
-                "{}: the goal, object {goal}, is not seen from above once the scene settles",
-                path.display()
+                "{source}: the goal, object {goal}, is not seen from above once the scene settles"
             );
         }
         let picks: Vec<usize> = candidates

@@ -140,6 +140,50 @@ fn scene_grasps_tells_grasps_that_fit_the_jaws_from_those_that_do_not() {
 }
 
 #[test]
+fn scene_grasps_draws_random_scenes_with_their_goal_in_the_row() {
+    let args = |row: &'static str| {
+        let stdout = pushgrasp_ok(&[
+            "scene",
+            "grasps",
+            "--random",
+            "2",
+            "--objects",
+            "4",
+            "--row",
+            row,
+            "--stride",
+            "4",
+            "--jitters",
+            "1",
+            "--json",
+        ]);
+        let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        report["cases"].as_array().unwrap().clone()
+    };
+    let plain = args("0");
+    let names: Vec<&str> = plain.iter().map(|c| c["case"].as_str().unwrap()).collect();
+    assert_eq!(names, ["random-4-0", "random-4-1"]);
+    for case in &plain {
+        assert!(case["candidates"].as_u64().unwrap() > 0, "{case}");
+        let success = case["success"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&success), "{case}");
+    }
+    let rows = args("3");
+    assert_eq!(rows[0]["case"], "random-4-row-3-0");
+    // The row's blocks are objects 1 to 3.
+    assert!(
+        rows.iter().all(|c| c["goal"].as_u64().unwrap() <= 3),
+        "{rows:?}"
+    );
+
+    let stderr = pushgrasp_fails(&["scene", "grasps", "--json"]);
+    assert!(
+        stderr.contains("--arrangements") && stderr.contains("--random"),
+        "{stderr}"
+    );
+}
+
+#[test]
 fn scene_convert_names_the_goal() {
     let Some(original) = original_case_00() else {
         return;

@@ -69,6 +69,18 @@ pub struct PlacedObject {
 }
 
 impl PlacedObject {
+    /// An object at `pose`, its rotation written as the file's Euler angles.
+    pub fn at(id: ObjectId, shape: ShapeKind, colour: [u8; 3], pose: Pose) -> Self {
+        let (x, y, z) = pose.rotation.to_euler(glamx::EulerRot::XYZ);
+        Self {
+            id,
+            shape,
+            colour,
+            position: pose.translation.to_array(),
+            euler_xyz: [x, y, z],
+        }
+    }
+
     pub fn pose(&self) -> Pose {
         let [a, b, c] = self.euler_xyz;
         let rotation = Rotation::from_rotation_x(a)
@@ -86,13 +98,17 @@ impl Arrangement {
         let mut jittered = self.clone();
         for object in &mut jittered.objects {
             let mut shift = |range: f32| rng.random_range(-range..=range);
-            object.position[0] += shift(metres);
-            object.position[1] += shift(metres);
+            let pose = object.pose();
+            let moved = pose.translation + Vector::new(shift(metres), shift(metres), 0.0);
             // About the world's vertical: the file's last Euler angle turns the object about
             // its own z, which lies flat for most arranged objects and would tilt them.
-            let turned = Rotation::from_rotation_z(shift(radians)) * object.pose().rotation;
-            let (x, y, z) = turned.to_euler(glamx::EulerRot::XYZ);
-            object.euler_xyz = [x, y, z];
+            let turned = Rotation::from_rotation_z(shift(radians)) * pose.rotation;
+            *object = PlacedObject::at(
+                object.id,
+                object.shape,
+                object.colour,
+                Pose::from_parts(moved, turned),
+            );
         }
         jittered
     }

@@ -6,7 +6,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::*;
 
-use crate::arrangement::Arrangement;
+use crate::arrangement::{Arrangement, PlacedObject};
 use crate::catalogue::{SLOT_COLOURS, ShapeKind, box_around};
 use crate::config::SimConfig;
 use crate::error::SimError;
@@ -102,6 +102,19 @@ impl Tabletop {
             tabletop.add_object(object.id, object.shape, object.colour, object.pose())?;
         }
         Ok(tabletop)
+    }
+
+    /// The scene as it stands, as an arrangement that [`Tabletop::from_arrangement`]
+    /// rebuilds (a random scene turned into a test case).
+    pub fn to_arrangement(&self, name: Option<String>, goal: Option<ObjectId>) -> Arrangement {
+        Arrangement {
+            name,
+            goal,
+            objects: self
+                .objects()
+                .map(|o| PlacedObject::at(o.id, o.kind, o.colour, o.pose))
+                .collect(),
+        }
     }
 }
 

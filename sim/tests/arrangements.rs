@@ -382,6 +382,30 @@ fn jitter_shifts_objects_and_turns_them_about_the_vertical() {
 }
 
 #[test]
+fn a_settled_random_scene_rebuilt_from_its_arrangement_stays_where_it_was() {
+    let config = SimConfig::default();
+    let (scene, _) = Tabletop::random(&config, 10, 3).unwrap();
+    let arrangement = scene.to_arrangement(Some("random-3".into()), Some(2));
+    assert_eq!(arrangement.goal, Some(2));
+    assert_eq!(arrangement.objects.len(), scene.object_count());
+    let mut rebuilt = Tabletop::from_arrangement(&config, &arrangement).unwrap();
+    rebuilt.settle();
+    for (before, after) in scene.objects().zip(rebuilt.objects()) {
+        assert_eq!(
+            (before.id, before.kind, before.colour),
+            (after.id, after.kind, after.colour)
+        );
+        let moved = (after.pose.translation - before.pose.translation).length();
+        let turned = before.pose.rotation.angle_between(after.pose.rotation);
+        assert!(
+            moved < 0.002 && turned < 0.02,
+            "object {} moved {moved} m and turned {turned} rad",
+            before.id
+        );
+    }
+}
+
+#[test]
 fn malformed_toml_is_reported_with_its_line() {
     // (what is wrong, (text in GOOD_TOML, replacement), the bad line, what the message says)
     let cases = [
