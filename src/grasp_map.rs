@@ -23,6 +23,7 @@ use sim::{
 };
 
 use crate::eval::{load_agent, named_arrangements};
+use crate::scene::RowArgs;
 
 /// Random scenes' seeds start here (plus `--seed`), apart from the jitter seeds of the
 /// case list, which count up from `--seed`.
@@ -41,10 +42,9 @@ pub struct GraspsArgs {
     /// Objects dropped in each random scene (stage 1 drops 5, stages 2 and 3 drop 10).
     #[arg(long, default_value_t = 10, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
     objects: usize,
-    /// Lay this many of each random scene's objects in a touching row first (a run
-    /// config's `[rows]` scenes); the goal is then one of the row.
-    #[arg(long, default_value_t = 0)]
-    row: usize,
+    /// Random scenes' touching rows; the goal is then one of their blocks.
+    #[command(flatten)]
+    rows: RowArgs,
     /// Heightmap pixel size in metres (the stage configs: 0.004, 112 x 112); with
     /// --checkpoint, the simulator of its run config.
     #[arg(long, default_value_t = 0.004, conflicts_with = "checkpoint")]
@@ -117,21 +117,18 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         .map(|(path, name, arrangement)| (path.display().to_string(), name, arrangement))
         .collect();
     for index in 0..args.random {
-        let name = match args.row {
-            0 => format!("random-{}-{index}", args.objects),
-            row => format!("random-{}-row-{row}-{index}", args.objects),
-        };
+        let name = format!("random-{}{}-{index}", args.objects, args.rows.label());
         let seed = args
             .seed
             .wrapping_add(RANDOM_SCENE_SEEDS)
             .wrapping_add(index as u64);
-        let (tabletop, _) = Tabletop::random_with_row(&sim, args.objects, args.row, seed)?;
-        // With a row, the goal is one of the row's blocks (ids 1 to `row`).
+        let (tabletop, _) = Tabletop::random_with_rows(&sim, args.objects, args.rows.rows(), seed)?;
+        // With rows, the goal is one of their blocks (ids 1 to `row`).
         let visible: Vec<ObjectId> = Camera::new(tabletop.grid())
             .render(&tabletop)
             .visible_ids()
             .into_iter()
-            .filter(|&id| args.row < 2 || usize::from(id) <= args.row)
+            .filter(|&id| args.rows.row < 2 || usize::from(id) <= args.rows.row)
             .collect();
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {

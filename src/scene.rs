@@ -4,8 +4,9 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
+use clap::builder::RangedU64ValueParser;
 use clap::{Args, Subcommand};
-use sim::{Arrangement, Camera, OriginalOptions, SimConfig, Tabletop};
+use sim::{Arrangement, Camera, OriginalOptions, Rows, SimConfig, Tabletop};
 
 use crate::{grasp_map, pictures};
 
@@ -19,6 +20,36 @@ pub enum SceneCommand {
     Grasps(grasp_map::GraspsArgs),
 }
 
+/// The touching rows a random scene starts with (the scenes a run config's `[rows]` asks
+/// for).
+#[derive(Args, Clone, Copy)]
+pub struct RowArgs {
+    /// Lay this many of the objects side by side, touching, before dropping the others.
+    #[arg(long, default_value_t = 0)]
+    pub row: usize,
+    /// ... in this many lines side by side (more than one: a packed cluster).
+    #[arg(long, default_value_t = 1, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
+    pub lines: usize,
+}
+
+impl RowArgs {
+    pub fn rows(&self) -> Rows {
+        Rows {
+            blocks: self.row,
+            lines: self.lines,
+        }
+    }
+
+    /// How a scene name says it: empty without rows.
+    pub fn label(&self) -> String {
+        match (self.row, self.lines) {
+            (0 | 1, _) => String::new(),
+            (row, 1) => format!("-row{row}"),
+            (row, lines) => format!("-row{row}x{lines}"),
+        }
+    }
+}
+
 /// Where a scene comes from: random drops or an arrangement file.
 #[derive(Args)]
 pub struct SceneSource {
@@ -28,10 +59,8 @@ pub struct SceneSource {
     /// Seed of the random scene.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Lay this many of the objects side by side in a touching row before dropping the
-    /// others (the scenes a run config's `[rows]` asks for).
-    #[arg(long, default_value_t = 0, conflicts_with = "arrangement")]
-    pub row: usize,
+    #[command(flatten)]
+    pub rows: RowArgs,
     /// An arrangement file (original `.txt` format or our `.toml`) instead of random drops.
     #[arg(long)]
     pub arrangement: Option<PathBuf>,
@@ -67,7 +96,7 @@ impl SceneSource {
             }
             None => {
                 let (tabletop, report) =
-                    Tabletop::random_with_row(&config, self.objects, self.row, self.seed)?;
+                    Tabletop::random_with_rows(&config, self.objects, self.rows.rows(), self.seed)?;
                 let description = format!(
                     "random scene seed {} ({} dropped, settled in {} steps, at rest: {}, left the table: {:?})",
                     self.seed,
@@ -122,13 +151,12 @@ fn render(args: &RenderArgs) -> Result<()> {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "arrangement".into()),
-        None => match args.source.row {
-            0 | 1 => format!("random-{}-seed{}", args.source.objects, args.source.seed),
-            row => format!(
-                "random-{}-row{row}-seed{}",
-                args.source.objects, args.source.seed
-            ),
-        },
+        None => format!(
+            "random-{}{}-seed{}",
+            args.source.objects,
+            args.source.rows.label(),
+            args.source.seed
+        ),
     };
     println!("{description}");
     for path in pictures::write_heightmaps(&maps, &args.out, &stem)? {

@@ -169,7 +169,7 @@ fn scene_grasps_draws_random_scenes_with_their_goal_in_the_row() {
         assert!((0.0..=1.0).contains(&success), "{case}");
     }
     let rows = args("3");
-    assert_eq!(rows[0]["case"], "random-4-row-3-0");
+    assert_eq!(rows[0]["case"], "random-4-row3-0");
     // The row's blocks are objects 1 to 3.
     assert!(
         rows.iter().all(|c| c["goal"].as_u64().unwrap() <= 3),

@@ -28,6 +28,6 @@ pub use primitives::{
     Action, ActionOutcome, Primitive, ROTATIONS, nearest_rotation, rotation_angle,
 };
 pub use rapier3d;
-pub use scene::SceneReport;
+pub use scene::{Rows, SceneReport};
 pub use tabletop::{ANY_OBJECT, ObjectId, ObjectView, SettleReport, Tabletop};
 pub use workspace::PixelGrid;

@@ -16,6 +16,24 @@ use crate::workspace;
 /// Extra time after a drop's free fall before the next object is released (s).
 const DROP_GAP_S: f32 = 0.1;
 
+/// Blocks laid touching before a random drop: `blocks` of them in `lines` lines side by
+/// side (one line: a row; more: a packed cluster), the first lines the longer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Rows {
+    pub blocks: usize,
+    pub lines: usize,
+}
+
+impl Rows {
+    /// A plain drop.
+    pub const NONE: Self = Self::line(0);
+
+    /// `blocks` in one line.
+    pub const fn line(blocks: usize) -> Self {
+        Self { blocks, lines: 1 }
+    }
+}
+
 /// How a random scene came out: the objects dropped and the settle that followed (whose
 /// `removed` lists objects that left the table).
 #[derive(Clone, Debug, PartialEq)]
@@ -34,17 +52,18 @@ impl Tabletop {
         objects: usize,
         seed: u64,
     ) -> Result<(Self, SceneReport), SimError> {
-        Self::random_with_row(config, objects, 0, seed)
+        Self::random_with_rows(config, objects, Rows::NONE, seed)
     }
 
-    /// As [`Tabletop::random`], but the first `row` of the `objects` are first laid side by
-    /// side in a line, touching, lying on a face, at a random place and heading (the pattern
-    /// of the paper's challenging arrangements, where neighbours spoil many of the goal's
-    /// grasps); the others are then dropped as usual. `row` 0 or 1 is a plain drop.
-    pub fn random_with_row(
+    /// As [`Tabletop::random`], but the first `rows.blocks` of the `objects` are first laid
+    /// side by side in `rows.lines` lines, touching, lying on a face, at a random place and
+    /// heading (the pattern of the paper's challenging arrangements, where neighbours spoil
+    /// many of the goal's grasps); the others are then dropped as usual. Fewer than 2 blocks
+    /// is a plain drop.
+    pub fn random_with_rows(
         config: &SimConfig,
         objects: usize,
-        row: usize,
+        rows: Rows,
         seed: u64,
     ) -> Result<(Self, SceneReport), SimError> {
         if objects > 255 {
@@ -56,12 +75,17 @@ impl Tabletop {
         let fall_steps = (fall_s * config.physics_hz).ceil() as u32;
         let half = config.drop_square / 2.0;
         let mut dropped = Vec::with_capacity(objects);
-        let row = if row >= 2 { row.min(objects) } else { 0 };
+        let row = if rows.blocks >= 2 {
+            rows.blocks.min(objects)
+        } else {
+            0
+        };
         if row > 0 {
             let kinds: Vec<ShapeKind> = (0..row)
                 .map(|_| ShapeKind::ALL[rng.random_range(0..ShapeKind::ALL.len())])
                 .collect();
-            for (k, (kind, pose)) in lay_row(&kinds, half, &mut rng).into_iter().enumerate() {
+            let laid = lay_rows(&kinds, rows.lines, half, &mut rng);
+            for (k, (kind, pose)) in laid.into_iter().enumerate() {
                 let id = (k + 1) as ObjectId;
                 tabletop.add_object(id, kind, SLOT_COLOURS[k % SLOT_COLOURS.len()], pose)?;
                 dropped.push((id, kind));
@@ -121,11 +145,16 @@ impl Tabletop {
 /// Gap left between neighbours in a row (metres): touching, without starting interpenetrated.
 const ROW_GAP: f32 = 0.0005;
 
-/// Poses that lay `kinds` side by side along a line through a random point within `half` of
-/// the workspace centre, at a random heading: each block lies on one of its box faces that
-/// it rests flat on ([`rests_flat`]), turned a random quarter about the vertical, just above
-/// the table.
-fn lay_row(kinds: &[ShapeKind], half: f32, rng: &mut ChaCha8Rng) -> Vec<(ShapeKind, Pose)> {
+/// Poses that lay `kinds` side by side in `lines` touching lines through a random point
+/// within `half` of the workspace centre, at a random heading: each block lies on one of its
+/// box faces that it rests flat on ([`rests_flat`]), turned a random quarter about the
+/// vertical, just above the table.
+fn lay_rows(
+    kinds: &[ShapeKind],
+    lines: usize,
+    half: f32,
+    rng: &mut ChaCha8Rng,
+) -> Vec<(ShapeKind, Pose)> {
     const QUARTER: f32 = std::f32::consts::FRAC_PI_2;
     let faces_down = [
         Rotation::IDENTITY,
@@ -150,26 +179,47 @@ fn lay_row(kinds: &[ShapeKind], half: f32, rng: &mut ChaCha8Rng) -> Vec<(ShapeKi
             (kind, rotation, lo, hi)
         })
         .collect();
-    let length: f32 = blocks
-        .iter()
-        .map(|(_, _, lo, hi)| hi.x - lo.x + ROW_GAP)
-        .sum();
     let heading = Rotation::from_rotation_z(rng.random_range(0.0..TAU));
     let centre = Vector::new(
         workspace::CENTRE[0] + rng.random_range(-half / 2.0..half / 2.0),
         workspace::CENTRE[1] + rng.random_range(-half / 2.0..half / 2.0),
         0.0,
     );
-    let mut start = -length / 2.0;
-    blocks
-        .into_iter()
-        .map(|(kind, rotation, lo, hi)| {
-            let along = Vector::new(start - lo.x, -(lo.y + hi.y) / 2.0, 0.0);
+    // Lines along x, stacked along y, the pack centred on `centre`, each line centred on its
+    // own length. A lone line's blocks sit on its middle; in a pack the first line's lie
+    // against the second and the others' against the line before, so the first two lines
+    // touch wherever they face each other.
+    let lines: Vec<_> = blocks.chunks(blocks.len().div_ceil(lines.max(1))).collect();
+    let count = lines.len();
+    let width = |line: &[(ShapeKind, Rotation, Vector, Vector)]| {
+        line.iter()
+            .map(|(_, _, lo, hi)| hi.y - lo.y)
+            .fold(0.0, f32::max)
+    };
+    let pack_width: f32 = lines.iter().map(|l| width(l) + ROW_GAP).sum::<f32>() - ROW_GAP;
+    let mut side = -pack_width / 2.0;
+    let mut poses = Vec::with_capacity(blocks.len());
+    for (index, line) in lines.into_iter().enumerate() {
+        let start_y = side;
+        side += width(line) + ROW_GAP;
+        let length: f32 = line
+            .iter()
+            .map(|(_, _, lo, hi)| hi.x - lo.x + ROW_GAP)
+            .sum();
+        let mut start = -length / 2.0;
+        for &(kind, rotation, lo, hi) in line {
+            let y = match (index, count) {
+                (_, 1) => -(lo.y + hi.y) / 2.0,
+                (0, _) => side - ROW_GAP - hi.y,
+                _ => start_y - lo.y,
+            };
+            let along = Vector::new(start - lo.x, y, 0.0);
             start += hi.x - lo.x + ROW_GAP;
             let position = centre + heading * along + Vector::new(0.0, 0.0, ROW_GAP - lo.z);
-            (kind, Pose::from_parts(position, heading * rotation))
-        })
-        .collect()
+            poses.push((kind, Pose::from_parts(position, heading * rotation)));
+        }
+    }
+    poses
 }
 
 /// Whether `kind` turned by `rotation` stands on a flat face: the vertices on its lowest

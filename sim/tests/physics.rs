@@ -6,7 +6,7 @@ use std::f32::consts::FRAC_PI_4;
 
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
-use sim::{Action, Camera, Heightmaps, Primitive, ShapeKind, SimConfig, Tabletop};
+use sim::{Action, Camera, Heightmaps, Primitive, Rows, ShapeKind, SimConfig, Tabletop};
 
 fn lone(kind: ShapeKind, yaw: f32) -> Tabletop {
     let mut tabletop = Tabletop::new(&SimConfig::default()).unwrap();
@@ -164,7 +164,8 @@ fn gap_px(maps: &Heightmaps, a: u8, b: u8) -> f32 {
 fn a_row_scene_lays_its_first_objects_side_by_side_touching() {
     let config = SimConfig::default();
     for seed in 0..8 {
-        let (tabletop, report) = Tabletop::random_with_row(&config, 4, 4, seed).unwrap();
+        let (tabletop, report) =
+            Tabletop::random_with_rows(&config, 4, Rows::line(4), seed).unwrap();
         assert!(report.settle.at_rest, "seed {seed}: {report:?}");
         assert_eq!(tabletop.object_count(), 4, "seed {seed}: nothing falls off");
         let maps = observe(&tabletop);
@@ -184,9 +185,38 @@ fn a_row_scene_lays_its_first_objects_side_by_side_touching() {
     }
     // Without a row the scene is the plain random drop, draw for draw.
     let plain = observe(&Tabletop::random(&config, 6, 3).unwrap().0);
-    let unrowed = observe(&Tabletop::random_with_row(&config, 6, 1, 3).unwrap().0);
+    let unrowed = observe(
+        &Tabletop::random_with_rows(&config, 6, Rows::line(1), 3)
+            .unwrap()
+            .0,
+    );
     assert_eq!(plain.ids, unrowed.ids);
     assert_eq!(plain.height, unrowed.height);
+}
+
+#[test]
+fn a_packed_scene_lays_its_lines_side_by_side_touching() {
+    let config = SimConfig::default();
+    let pack = Rows {
+        blocks: 5,
+        lines: 2,
+    };
+    for seed in 0..8 {
+        let (tabletop, report) = Tabletop::random_with_rows(&config, 5, pack, seed).unwrap();
+        assert!(report.settle.at_rest, "seed {seed}: {report:?}");
+        assert_eq!(tabletop.object_count(), 5, "seed {seed}: nothing falls off");
+        let maps = observe(&tabletop);
+        // Lines of 3 (objects 1-3) and 2 (4-5), laid as a row's blocks are (the row test);
+        // the second line against the first.
+        let between = [(1, 4), (1, 5), (2, 4), (2, 5), (3, 4), (3, 5)]
+            .map(|(a, b)| gap_px(&maps, a, b))
+            .into_iter()
+            .fold(f32::INFINITY, f32::min);
+        assert!(between <= 2.0, "seed {seed}: the lines {between} px apart");
+        for object in tabletop.objects() {
+            assert!(object.pose.translation.z < 0.051, "seed {seed}: {object:?}");
+        }
+    }
 }
 
 #[test]

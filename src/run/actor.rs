@@ -266,7 +266,7 @@ pub fn run(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut scene_seed = seed;
     let new_scene = |seed, rng: &mut ChaCha8Rng| {
-        Tabletop::random_with_row(&config.sim, config.objects, config.rows.draw(rng), seed)
+        Tabletop::random_with_rows(&config.sim, config.objects, config.rows.draw(rng), seed)
     };
     let (mut tabletop, _) = new_scene(scene_seed, &mut rng)?;
     let camera = Camera::new(tabletop.grid());

@@ -9,7 +9,7 @@ use learner::{LearningConfig, TrainedNet};
 use qnet::QNetConfig;
 use rand::RngExt;
 use serde::{Deserialize, Serialize};
-use sim::SimConfig;
+use sim::{Rows, SimConfig};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -80,10 +80,10 @@ impl Default for LoggingConfig {
     }
 }
 
-/// Training scenes whose first objects lie side by side in a touching row before the others
-/// drop: the pattern of the paper's challenging arrangements (neighbours leave the jaws no
-/// room until a push separates them), which random drops rarely make. Evaluation's random
-/// scenes never have one.
+/// Training scenes whose first objects lie side by side in a touching row (or in `lines`
+/// rows side by side, a packed cluster) before the others drop: the pattern of the paper's
+/// challenging arrangements, where neighbours spoil many of the goal's grasps, which random
+/// drops rarely make. Evaluation's random scenes never have one.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RowScenes {
@@ -91,6 +91,8 @@ pub struct RowScenes {
     pub share: f64,
     /// Objects in the row (at most the scene's).
     pub objects: usize,
+    /// Lines the row's objects are laid in, side by side (more than one: a packed cluster).
+    pub lines: usize,
 }
 
 impl Default for RowScenes {
@@ -98,18 +100,22 @@ impl Default for RowScenes {
         Self {
             share: 0.0,
             objects: 3,
+            lines: 1,
         }
     }
 }
 
 impl RowScenes {
-    /// Objects in the next scene's row: `objects` with probability `share`, else 0 (no draw
-    /// at all when `share` is 0, so such runs see the scenes they always saw).
-    pub fn draw(&self, rng: &mut impl rand::Rng) -> usize {
+    /// The next scene's rows: `objects` in `lines` with probability `share`, else none (no
+    /// draw at all when `share` is 0, so such runs see the scenes they always saw).
+    pub fn draw(&self, rng: &mut impl rand::Rng) -> Rows {
         if self.share > 0.0 && rng.random_bool(self.share) {
-            self.objects
+            Rows {
+                blocks: self.objects,
+                lines: self.lines,
+            }
         } else {
-            0
+            Rows::NONE
         }
     }
 }
@@ -190,6 +196,13 @@ impl RunConfig {
                 self.objects
             );
         }
+        if !(1..=self.rows.objects.max(1)).contains(&self.rows.lines) {
+            bail!(
+                "rows.lines: {} is not between 1 and the row's {} objects",
+                self.rows.lines,
+                self.rows.objects
+            );
+        }
         if self.actors == 0 {
             bail!("actors: must be at least 1");
         }
@@ -268,11 +281,16 @@ mod tests {
         let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(5);
         let rows = RowScenes {
             share: 0.25,
-            objects: 3,
+            objects: 4,
+            lines: 2,
         };
-        let drawn: Vec<usize> = (0..4000).map(|_| rows.draw(&mut rng)).collect();
-        assert!(drawn.iter().all(|&n| n == 0 || n == 3));
-        let share = drawn.iter().filter(|&&n| n == 3).count() as f64 / 4000.0;
+        let pack = Rows {
+            blocks: 4,
+            lines: 2,
+        };
+        let drawn: Vec<Rows> = (0..4000).map(|_| rows.draw(&mut rng)).collect();
+        assert!(drawn.iter().all(|&n| n == Rows::NONE || n == pack));
+        let share = drawn.iter().filter(|&&n| n == pack).count() as f64 / 4000.0;
         assert!((share - 0.25).abs() < 0.03, "{share}");
 
         let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
@@ -286,6 +304,10 @@ mod tests {
         );
         let err = with("share = 0.3\nobjects = 9").unwrap_err().to_string();
         assert!(err.contains("rows.objects"), "{err}");
+        let err = with("share = 0.3\nobjects = 3\nlines = 4")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("rows.lines"), "{err}");
     }
 
     #[test]
