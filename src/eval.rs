@@ -209,7 +209,6 @@ fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {
     std::fs::write(path, lines).with_context(|| format!("writing {}", path.display()))
 }
 
-/// The `.toml` files named, and those in the directories named, in order.
 /// A checkpoint's nets as an agent in `mode`, with the run config they were trained with
 /// (`config`, else `config.toml` in the checkpoint's run directory) and their update count.
 pub fn load_agent(
@@ -265,6 +264,7 @@ pub fn named_arrangements(paths: &[PathBuf]) -> Result<Vec<(PathBuf, String, Arr
         .collect()
 }
 
+/// The `.toml` files named, and those in the directories named, in order.
 fn arrangement_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for path in paths {

@@ -62,7 +62,7 @@ pub struct SceneSource {
     #[command(flatten)]
     pub rows: RowArgs,
     /// An arrangement file (original `.txt` format or our `.toml`) instead of random drops.
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["row", "lines"])]
     pub arrangement: Option<PathBuf>,
     /// Add the authors' +0.1 m y offset when reading an original-format file.
     #[arg(long)]
