@@ -12,10 +12,15 @@ use serde_json::Value;
 const CONFIG: &str = "configs/stage1.toml";
 
 fn command(logs: &Path, args: &[&str]) -> Command {
+    command_with(Path::new(CONFIG), logs, args)
+}
+
+fn command_with(config: &Path, logs: &Path, args: &[&str]) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_pushgrasp"));
     command
         .arg("train")
-        .args(["--config", CONFIG])
+        .arg("--config")
+        .arg(config)
         .arg("--logs")
         .arg(logs)
         .args(args)
@@ -420,6 +425,41 @@ fn two_actor_threads_over_channels_lose_no_step() {
         ],
     );
     assert!(assert_lossless(logs.path(), "threads") >= 16);
+}
+
+#[test]
+fn trial_grasps_reach_the_buffer_as_experience_not_as_episodes() {
+    let logs = logs();
+    let config = logs.path().join("trials.toml");
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG)).unwrap();
+    std::fs::write(&config, format!("grasp_trials = 3\n{text}")).unwrap();
+    let output = command_with(
+        &config,
+        logs.path(),
+        &["--threads", "--episodes", "12", "--run-id", "trials"],
+    )
+    .output()
+    .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let received = assert_lossless(logs.path(), "trials");
+    let summary = summary(logs.path(), "trials");
+    let buffer = &summary["buffer"];
+    let mut trials = 0;
+    for report in summary["actors_reports"].as_array().unwrap() {
+        // Stage 1 grasps at every action, and three trials go before each.
+        assert_eq!(u(&report["trials"]), 3 * u(&report["actions"]), "{report}");
+        trials += u(&report["trials"]);
+    }
+    assert!(trials >= 36, "{trials} trials for at least 12 grasps");
+    assert_eq!(u(&buffer["trials"]), trials);
+    let episodes = u(&buffer["episodes"]);
+    assert!((12..trials).contains(&episodes), "{episodes} episodes");
+    // Every trial and every grasp but the last few waiting for their next state arrived.
+    assert!(received >= trials + episodes, "{received} steps");
 }
 
 #[test]

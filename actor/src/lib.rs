@@ -14,7 +14,7 @@ pub mod reward;
 pub use error::ActorError;
 pub use policy::{
     Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
-    grasp_region, valid_push_starts,
+    grasp_region, trial_grasps, valid_push_starts,
 };
 pub use qmaps::QMaps;
 pub use reward::{GRASP_REWARD, PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

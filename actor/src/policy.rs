@@ -98,6 +98,8 @@ pub enum Reason {
     GraspQHigher,
     /// Push (VPG's rule): the best push Q is higher than the goal's grasp Q.
     PushQHigher,
+    /// Grasp, tried on a copy of the scene beside the one executed ([`trial_grasps`]).
+    Trial,
 }
 
 /// What the policy sees at one step.
@@ -240,13 +242,9 @@ pub fn choose(
 
     // The coin is drawn even at epsilon 0: a greedy step always takes exactly one draw.
     let explored = rng.random::<f32>() < epsilon;
-    let side = obs.side();
     let (rotation, row, col) = if explored {
         // Never empty: both masks fall back to the whole table.
-        let pixels: Vec<usize> = (0..allowed.len()).filter(|&i| allowed[i]).collect();
-        let pixel = pixels[rng.random_range(0..pixels.len())];
-        let rotation = rng.random_range(0..maps.rotations());
-        (rotation, pixel / side, pixel % side)
+        uniform_draw(&allowed, obs.side(), rng)
     } else {
         (best.1, best.2, best.3)
     };
@@ -264,6 +262,44 @@ pub fn choose(
         reason,
         goal_visible: obs.goal_mask(input.goal).contains(&true),
     })
+}
+
+/// Grasps to try on copies of the scene beside the one `chosen` executes (simulation
+/// only): `n` pixels and rotations of the grasp region, drawn as exploration draws them,
+/// each with its Q from `input`'s grasp maps and `chosen`'s view of the state.
+pub fn trial_grasps(
+    input: &PolicyInput,
+    chosen: &Decision,
+    n: usize,
+    rng: &mut impl Rng,
+) -> Result<Vec<Decision>, ActorError> {
+    check_shape(Primitive::Grasp, input.grasp, input.obs)?;
+    let region = grasp_region(input.obs, input.goal);
+    Ok((0..n)
+        .map(|_| {
+            let (rotation, row, col) = uniform_draw(&region, input.obs.side(), rng);
+            Decision {
+                action: Action {
+                    primitive: Primitive::Grasp,
+                    rotation,
+                    row,
+                    col,
+                },
+                predicted_q: input.grasp.get(rotation, row, col),
+                explored: true,
+                reason: Reason::Trial,
+                ..*chosen
+            }
+        })
+        .collect())
+}
+
+/// A pixel of `allowed` (row-major, `side * side`, not all false) and a rotation, uniformly.
+fn uniform_draw(allowed: &[bool], side: usize, rng: &mut impl Rng) -> (u8, usize, usize) {
+    let pixels: Vec<usize> = (0..allowed.len()).filter(|&i| allowed[i]).collect();
+    let pixel = pixels[rng.random_range(0..pixels.len())];
+    let rotation = rng.random_range(0..ROTATIONS);
+    (rotation, pixel / side, pixel % side)
 }
 
 /// Q maps must cover the observation's pixels at the simulator's rotations.

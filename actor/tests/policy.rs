@@ -9,7 +9,7 @@ use std::collections::HashSet;
 
 use actor::{
     ActorError, Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, QMaps, Reason,
-    Rule, choose, grasp_region, valid_push_starts,
+    Rule, choose, grasp_region, trial_grasps, valid_push_starts,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -349,6 +349,41 @@ fn pushes_never_start_on_an_object_greedy_or_exploring() {
         explored_pixels.len() > 140,
         "{} distinct pixels",
         explored_pixels.len()
+    );
+}
+
+#[test]
+fn trial_grasps_spread_over_the_goal_each_with_its_own_q() {
+    let obs = scene();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let grasp = random_maps(&obs, 0.0..2.0, &mut rng);
+    let input = input(&obs, &grasp, None, 0);
+    let chosen = greedy(&input);
+    let trials = trial_grasps(&input, &chosen, 400, &mut rng).unwrap();
+    assert_eq!(trials.len(), 400);
+    let goal = obs.goal_mask(GOAL);
+    let side = obs.side();
+    for trial in &trials {
+        let a = trial.action;
+        assert_eq!(a.primitive, Primitive::Grasp);
+        assert!(goal[a.row * side + a.col], "{a:?} is off the goal");
+        assert_eq!(trial.predicted_q, grasp.get(a.rotation, a.row, a.col));
+        assert_eq!(
+            (trial.reason, trial.explored, trial.goal_grasp_q),
+            (Reason::Trial, true, chosen.goal_grasp_q)
+        );
+    }
+    let rotations: HashSet<u8> = trials.iter().map(|t| t.action.rotation).collect();
+    let pixels: HashSet<(usize, usize)> = trials
+        .iter()
+        .map(|t| (t.action.row, t.action.col))
+        .collect();
+    assert_eq!(rotations.len(), ROTATIONS as usize);
+    let goal_pixels = goal.iter().filter(|&&g| g).count();
+    assert!(
+        pixels.len() * 2 > goal_pixels,
+        "{} of the goal's {goal_pixels} pixels drawn",
+        pixels.len()
     );
 }
 

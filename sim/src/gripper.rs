@@ -27,6 +27,7 @@ const GRIP_FORCE: f32 = 5.0;
 /// Where the gripper waits between actions, well clear of the scene.
 const PARK_HEIGHT: f32 = 1.0;
 
+#[derive(Clone)]
 pub(crate) struct Gripper {
     palm: RigidBodyHandle,
     fingers: [RigidBodyHandle; 2],

@@ -26,6 +26,7 @@ const REST_STEPS: u32 = 12;
 /// Below this height an object has fallen off the table.
 const FALLEN_Z: f32 = -0.02;
 
+#[derive(Clone)]
 struct Object {
     id: ObjectId,
     kind: ShapeKind,
@@ -103,6 +104,37 @@ impl Tabletop {
 
     pub fn config(&self) -> &SimConfig {
         &self.config
+    }
+
+    /// An exact copy to try an action on while this scene stays as it is: the bodies,
+    /// colliders, joints, islands and contacts as they are now, with fresh pipelines (the
+    /// per-step workspaces that rapier's own world snapshots leave out too), so the copy
+    /// steps as this scene would.
+    pub fn replica(&self) -> Self {
+        let world = &self.world;
+        Self {
+            config: self.config.clone(),
+            grid: self.grid,
+            world: PhysicsWorld {
+                gravity: world.gravity,
+                integration_parameters: world.integration_parameters,
+                physics_pipeline: PhysicsPipeline::new(),
+                collision_pipeline: CollisionPipeline::new(),
+                islands: world.islands.clone(),
+                broad_phase: world.broad_phase.clone(),
+                narrow_phase: world.narrow_phase.clone(),
+                bodies: world.bodies.clone(),
+                colliders: world.colliders.clone(),
+                impulse_joints: world.impulse_joints.clone(),
+                multibody_joints: world.multibody_joints.clone(),
+                soft_bodies: world.soft_bodies.clone(),
+                ccd_solver: CCDSolver::new(),
+            },
+            objects: self.objects.clone(),
+            gripper: self.gripper.clone(),
+            physics_steps: self.physics_steps,
+            physics_time: self.physics_time,
+        }
     }
 
     pub fn grid(&self) -> PixelGrid {

@@ -142,7 +142,12 @@ impl Run {
                     .extend(steps.into_iter().map(|s| (file.clone(), s)));
             }
             if has(BUFFER_EPISODE) {
-                ends.extend(records::<EpisodeEnd>(&file, BUFFER_EPISODE)?);
+                // Trial grasps are experience, not episodes.
+                ends.extend(
+                    records::<EpisodeEnd>(&file, BUFFER_EPISODE)?
+                        .into_iter()
+                        .filter(|end| !end.trial),
+                );
             }
             if has(BUFFER_STATS) {
                 run.buffer

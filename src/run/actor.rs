@@ -6,7 +6,7 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
-use actor::{Decision, PushReward, QMaps, grasp_reward};
+use actor::{Decision, PolicyInput, PushReward, QMaps, grasp_reward, trial_grasps};
 use agent::{Agent, Choice};
 use anyhow::{Context, Result};
 use buffer::Transition;
@@ -48,7 +48,15 @@ impl ActorId {
     fn episode(self, counter: u64) -> u64 {
         (u64::from(self.index) << 48) | (u64::from(self.incarnation) << 32) | counter
     }
+
+    /// The ids of trial grasps, apart from the episodes' by the counter's top bit.
+    fn trial(self, counter: u64) -> u64 {
+        self.episode(counter | TRIAL_BIT)
+    }
 }
+
+/// Set in the counter part of a trial grasp's episode id.
+const TRIAL_BIT: u64 = 1 << 31;
 
 /// What an actor did, written to the run directory when it stops.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -60,6 +68,9 @@ pub struct ActorReport {
     /// Steps shipped to the buffer (episode ends not counted).
     pub steps_sent: u64,
     pub goal_grasps: u64,
+    /// Grasps tried on copies of the scene (`grasp_trials`), not counted in `actions`.
+    #[serde(default)]
+    pub trials: u64,
     pub weights_version: u64,
     /// Seconds from the first weights received to the stop: the time `actions` took.
     pub acting_s: f64,
@@ -88,6 +99,36 @@ struct Shipper<'a> {
     push_reward: PushReward,
     weights_version: u64,
     steps_sent: u64,
+}
+
+impl Pending {
+    /// A grasp's step, which ends its episode: scored with the grasp reward.
+    fn grasp(
+        mut transition: Transition,
+        decision: Decision,
+        origin: Origin,
+        trial: bool,
+        scene_seed: u64,
+        pictures_ns: Option<u64>,
+    ) -> Self {
+        transition.reward = grasp_reward(transition.grasped, transition.goal);
+        Self {
+            ends: Some(EpisodeEnd {
+                // Stamped when sent.
+                origin,
+                episode: transition.episode,
+                goal: transition.goal,
+                grasped: transition.grasped,
+                steps: transition.step + 1,
+                trial,
+            }),
+            transition,
+            decision,
+            push_changed: None,
+            scene_seed,
+            pictures_ns,
+        }
+    }
 }
 
 impl Shipper<'_> {
@@ -162,6 +203,9 @@ impl Shipper<'_> {
         if let Some(mut end) = pending.ends {
             end.origin = self.next_origin();
             self.outbox.send(&Message::EpisodeEnd(end.clone()))?;
+            if end.trial {
+                return Ok(());
+            }
             self.log.json(
                 ACTOR_EPISODE,
                 &EpisodeRecord {
@@ -310,9 +354,37 @@ pub fn run(
             if let Some(p) = pending.take() {
                 shipper.ship(p, Some(&decision))?;
             }
+            if decision.action.primitive == Primitive::Grasp && config.grasp_trials > 0 {
+                let input = PolicyInput {
+                    obs: &obs,
+                    goal,
+                    grasp: &grasp,
+                    push: push.as_ref(),
+                    pushes_so_far: step as usize,
+                };
+                for trial in trial_grasps(&input, &decision, config.grasp_trials, &mut rng)? {
+                    let outcome = tabletop.replica().act(&trial.action, &obs)?;
+                    let transition = Transition {
+                        episode: id.trial(report.trials),
+                        step: 0,
+                        goal,
+                        obs: obs.clone(),
+                        action: trial.action,
+                        reward: 0.0,
+                        grasped: outcome.grasped,
+                        next_value: None,
+                    };
+                    report.trials += 1;
+                    let pending =
+                        Pending::grasp(transition, trial, shipper.origin, true, scene_seed, None);
+                    // A successful trial bootstraps on the executed grasp's view of this
+                    // scene (its goal grasp Q), standing in for the scene it would leave.
+                    shipper.ship(pending, Some(&decision))?;
+                }
+            }
             let outcome = tabletop.act(&decision.action, &obs)?;
             report.actions += 1;
-            let mut transition = Transition {
+            let transition = Transition {
                 episode,
                 step,
                 goal,
@@ -339,28 +411,21 @@ pub fn run(
                 }
                 continue;
             }
-            transition.reward = grasp_reward(outcome.grasped, goal);
-            let goal_grasped = transition.reward > 0.0;
             failures_in_a_row = if outcome.grasped.is_some() {
                 0
             } else {
                 failures_in_a_row + 1
             };
-            pending = Some(Pending {
-                ends: Some(EpisodeEnd {
-                    // Stamped when sent.
-                    origin: shipper.origin,
-                    episode,
-                    goal,
-                    grasped: outcome.grasped,
-                    steps: step,
-                }),
+            let grasp = Pending::grasp(
                 transition,
                 decision,
-                push_changed: None,
+                shipper.origin,
+                false,
                 scene_seed,
                 pictures_ns,
-            });
+            );
+            let goal_grasped = grasp.transition.reward > 0.0;
+            pending = Some(grasp);
             report.episodes += 1;
             report.goal_grasps += u64::from(goal_grasped);
             break;

@@ -45,6 +45,9 @@ pub struct BufferReport {
     pub steps_received: u64,
     pub episodes: u64,
     pub goal_grasps: u64,
+    /// Trial grasps' ends (`grasp_trials`): stored and relabelled, not counted in `episodes`.
+    #[serde(default)]
+    pub trials: u64,
     /// Goal grasp success over the run's first and last 30 episodes.
     pub success_first30: Option<f64>,
     pub success_last30: Option<f64>,
@@ -161,6 +164,10 @@ impl BufferRole {
                 end.episode
             );
             self.replay.flush_episode(end.episode);
+        }
+        if end.trial {
+            self.report.trials += 1;
+            return Ok(());
         }
         self.report.episodes += 1;
         self.report.goal_grasps += u64::from(end.goal_grasped());

@@ -25,6 +25,12 @@ pub struct RunConfig {
     /// Scenes that start with a touching row of objects.
     #[serde(default)]
     pub rows: RowScenes,
+    /// Before each grasp it executes, an actor tries this many other grasps of the goal
+    /// (pixels and angles drawn as exploration draws them) on exact copies of the scene and
+    /// ships each as an experience of its own: denser grasp labels per scene, which only a
+    /// simulator can give. 0: the paper's one grasp per episode.
+    #[serde(default)]
+    pub grasp_trials: usize,
     /// Actor processes when `--actors` is not given.
     pub actors: u32,
     /// The run ends once this many episodes have ended (counted by the buffer).
@@ -203,6 +209,12 @@ impl RunConfig {
                 self.rows.objects
             );
         }
+        if self.grasp_trials > 0 && !self.trained_nets().contains(&TrainedNet::Grasp) {
+            bail!(
+                "grasp_trials: stage {} does not train the grasp net; its trials would teach nothing",
+                self.stage
+            );
+        }
         if self.actors == 0 {
             bail!("actors: must be at least 1");
         }
@@ -308,6 +320,24 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("rows.lines"), "{err}");
+    }
+
+    #[test]
+    fn grasp_trials_are_refused_where_the_grasp_net_is_frozen() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let with_trials = |stage: u8| {
+            let text = std::fs::read_to_string(dir.join(format!("stage{stage}.toml"))).unwrap();
+            let mut table: toml::Table = toml::from_str(&text).unwrap();
+            table.insert("grasp_trials".into(), 2.into());
+            RunConfig::parse(&toml::to_string(&table).unwrap(), "run.toml")
+        };
+        assert_eq!(with_trials(1).unwrap().grasp_trials, 2);
+        assert_eq!(with_trials(3).unwrap().grasp_trials, 2);
+        let err = with_trials(2).unwrap_err().to_string();
+        assert!(
+            err.contains("run.toml") && err.contains("grasp_trials"),
+            "{err}"
+        );
     }
 
     #[test]

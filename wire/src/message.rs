@@ -63,6 +63,10 @@ pub struct EpisodeEnd {
     pub grasped: Option<ObjectId>,
     /// Steps sent for the episode (pushes and the grasp).
     pub steps: u32,
+    /// A grasp tried on a copy of the scene (`grasp_trials`): stored and relabelled as an
+    /// episode, but not counted as one. Absent from logs written before trials: false.
+    #[serde(default)]
+    pub trial: bool,
 }
 
 impl EpisodeEnd {
