@@ -68,6 +68,9 @@ struct StageEntry {
     config: PathBuf,
     /// Overrides the config's episode budget.
     episodes: Option<u64>,
+    /// Settings for this stage alone, under the file's `[set]` and `--set`.
+    #[serde(default)]
+    set: toml::Table,
 }
 
 /// A stage's config: the file named and, with a `[set]`, the text it resolves to.
@@ -97,7 +100,9 @@ impl PipelineFile {
             .iter()
             .map(|entry| {
                 let config_path = base.join(&entry.config);
-                if self.set.is_empty() {
+                let mut set = entry.set.clone();
+                merge(&mut set, &self.set);
+                if set.is_empty() {
                     return Ok(Stage {
                         config: RunConfig::load(&config_path)?,
                         path: config_path,
@@ -105,9 +110,9 @@ impl PipelineFile {
                         entry,
                     });
                 }
-                let text = resolve(&config_path, &self.set)?;
+                let text = resolve(&config_path, &set)?;
                 let origin = format!(
-                    "{} with the [set] of {} and any --set",
+                    "{} with the stage's set, the [set] of {} and any --set",
                     config_path.display(),
                     path.display()
                 );
@@ -251,16 +256,59 @@ mod tests {
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
         let mut files =
             crate::run::files_with_extension(&configs.join("ablations"), "toml").unwrap();
-        files.extend(["pipeline.toml", "pipeline-paper.toml"].map(|f| configs.join(f)));
+        files.extend(
+            crate::run::files_with_extension(&configs, "toml")
+                .unwrap()
+                .into_iter()
+                .filter(|f| {
+                    f.file_name()
+                        .is_some_and(|n| n.to_string_lossy().starts_with("pipeline"))
+                }),
+        );
+        assert!(files.len() >= 6, "{files:?}");
         for path in files {
             let file = PipelineFile::load(&path).unwrap();
             let stages = file.stages(&path).unwrap();
             assert!(!stages.is_empty(), "{}", path.display());
-            assert_eq!(
-                stages.iter().any(|s| s.resolved.is_some()),
-                !file.set.is_empty()
-            );
+            for stage in &stages {
+                assert_eq!(
+                    stage.resolved.is_some(),
+                    !(file.set.is_empty() && stage.entry.set.is_empty()),
+                    "{}",
+                    path.display()
+                );
+            }
         }
+    }
+
+    #[test]
+    fn a_stages_own_set_applies_to_it_alone_and_yields_to_the_files() {
+        let dir = tempfile::tempdir().unwrap();
+        for stage in ["stage1.toml", "stage2.toml"] {
+            let from = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("configs")
+                .join(stage);
+            std::fs::copy(from, dir.path().join(stage)).unwrap();
+        }
+        let path = dir.path().join("pipeline.toml");
+        let write = |text: &str| std::fs::write(&path, text).unwrap();
+        write(
+            "[set]\nseed = 7\n[[stages]]\nconfig = \"stage1.toml\"\nset = { grasp_trials = 3, seed = 9 }\n\
+             [[stages]]\nconfig = \"stage2.toml\"\n",
+        );
+        let file = PipelineFile::load(&path).unwrap();
+        let stages = file.stages(&path).unwrap();
+        let (one, two) = (&stages[0].config, &stages[1].config);
+        assert_eq!((one.grasp_trials, one.seed), (3, 7));
+        assert_eq!((two.grasp_trials, two.seed), (0, 7));
+        // Stage 2 freezes the grasp net: trials there are refused, naming the stage's file.
+        write("[[stages]]\nconfig = \"stage2.toml\"\nset = { grasp_trials = 3 }\n");
+        let file = PipelineFile::load(&path).unwrap();
+        let err = file.stages(&path).err().unwrap().to_string();
+        assert!(
+            err.contains("stage2.toml") && err.contains("grasp_trials"),
+            "{err}"
+        );
     }
 
     #[test]
