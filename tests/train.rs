@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -28,15 +28,16 @@ fn command_with(config: &Path, logs: &Path, args: &[&str]) -> Command {
     command
 }
 
-fn train(logs: &Path, args: &[&str]) -> Output {
-    command(logs, args).output().expect("pushgrasp runs")
+fn train_ok(logs: &Path, args: &[&str]) -> String {
+    succeeds(command(logs, args))
 }
 
-fn train_ok(logs: &Path, args: &[&str]) -> String {
-    let output = train(logs, args);
+/// Runs `command`, which must succeed; returns its standard output.
+fn succeeds(mut command: Command) -> String {
+    let output = command.output().expect("pushgrasp runs");
     assert!(
         output.status.success(),
-        "pushgrasp train {args:?} failed ({}):\n{}\n{}",
+        "{command:?} failed ({}):\n{}\n{}",
         output.status,
         String::from_utf8_lossy(&output.stdout),
         String::from_utf8_lossy(&output.stderr)
@@ -433,18 +434,11 @@ fn trial_grasps_reach_the_buffer_as_experience_not_as_episodes() {
     let config = logs.path().join("trials.toml");
     let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG)).unwrap();
     std::fs::write(&config, format!("grasp_trials = 3\n{text}")).unwrap();
-    let output = command_with(
+    succeeds(command_with(
         &config,
         logs.path(),
         &["--threads", "--episodes", "12", "--run-id", "trials"],
-    )
-    .output()
-    .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    ));
     let received = assert_lossless(logs.path(), "trials");
     let summary = summary(logs.path(), "trials");
     let buffer = &summary["buffer"];
