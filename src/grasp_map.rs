@@ -37,8 +37,8 @@ pub struct GraspsArgs {
     arrangements: Vec<PathBuf>,
     /// Also this many random scenes, as training drops them (`--objects` each), with a
     /// visible object drawn as the goal: how the net does on the scenes it learns from.
-    #[arg(long, default_value_t = 0)]
-    random: usize,
+    #[arg(long, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
+    random: Option<usize>,
     /// Objects dropped in each random scene (stage 1 drops 5, stages 2 and 3 drop 10).
     #[arg(long, default_value_t = 10, value_parser = RangedU64ValueParser::<usize>::new().range(1..))]
     objects: usize,
@@ -116,7 +116,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         .into_iter()
         .map(|(path, name, arrangement)| (path.display().to_string(), name, arrangement))
         .collect();
-    for index in 0..args.random {
+    for index in 0..args.random.unwrap_or(0) {
         let name = format!("random-{}{}-{index}", args.objects, args.rows.label());
         let seed = args
             .seed

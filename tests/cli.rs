@@ -181,6 +181,9 @@ fn scene_grasps_draws_random_scenes_with_their_goal_in_the_row() {
         stderr.contains("--arrangements") && stderr.contains("--random"),
         "{stderr}"
     );
+    // No scenes at all is refused, not an empty table.
+    let stderr = pushgrasp_fails(&["scene", "grasps", "--random", "0"]);
+    assert!(stderr.contains("--random"), "{stderr}");
 }
 
 #[test]

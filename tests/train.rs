@@ -454,6 +454,10 @@ fn trial_grasps_reach_the_buffer_as_experience_not_as_episodes() {
     assert!((12..trials).contains(&episodes), "{episodes} episodes");
     // Every trial and every grasp but the last few waiting for their next state arrived.
     assert!(received >= trials + episodes, "{received} steps");
+    // The logs count the trials as steps, and only the executed grasps as episodes.
+    let report = inspect(&logs.path().join("trials"));
+    assert_eq!(u(&report["steps_received"]), received);
+    assert_eq!(u(&report["episodes"]), episodes);
 }
 
 #[test]
