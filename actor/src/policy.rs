@@ -264,20 +264,22 @@ pub fn choose(
     })
 }
 
-/// Grasps to try on copies of the scene beside the one `chosen` executes (simulation
-/// only): `n` pixels and rotations of the grasp region, drawn as exploration draws them,
-/// each with its Q from `input`'s grasp maps and `chosen`'s view of the state.
+/// Grasps of `goal` to try on copies of the scene beside the one `chosen` executes
+/// (simulation only): `n` pixels and rotations of the grasp region, drawn as exploration
+/// draws them, each with its Q from the `grasp` maps and `chosen`'s view of the state.
 pub fn trial_grasps(
-    input: &PolicyInput,
+    obs: &Heightmaps,
+    goal: ObjectId,
+    grasp: &QMaps,
     chosen: &Decision,
     n: usize,
     rng: &mut impl Rng,
 ) -> Result<Vec<Decision>, ActorError> {
-    check_shape(Primitive::Grasp, input.grasp, input.obs)?;
-    let region = grasp_region(input.obs, input.goal);
+    check_shape(Primitive::Grasp, grasp, obs)?;
+    let region = grasp_region(obs, goal);
     Ok((0..n)
         .map(|_| {
-            let (rotation, row, col) = uniform_draw(&region, input.obs.side(), rng);
+            let (rotation, row, col) = uniform_draw(&region, obs.side(), rng);
             Decision {
                 action: Action {
                     primitive: Primitive::Grasp,
@@ -285,7 +287,7 @@ pub fn trial_grasps(
                     row,
                     col,
                 },
-                predicted_q: input.grasp.get(rotation, row, col),
+                predicted_q: grasp.get(rotation, row, col),
                 explored: true,
                 reason: Reason::Trial,
                 ..*chosen

@@ -357,9 +357,8 @@ fn trial_grasps_spread_over_the_goal_each_with_its_own_q() {
     let obs = scene();
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let grasp = random_maps(&obs, 0.0..2.0, &mut rng);
-    let input = input(&obs, &grasp, None, 0);
-    let chosen = greedy(&input);
-    let trials = trial_grasps(&input, &chosen, 400, &mut rng).unwrap();
+    let chosen = greedy(&input(&obs, &grasp, None, 0));
+    let trials = trial_grasps(&obs, GOAL, &grasp, &chosen, 400, &mut rng).unwrap();
     assert_eq!(trials.len(), 400);
     let goal = obs.goal_mask(GOAL);
     let side = obs.side();

@@ -6,7 +6,7 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
-use actor::{Decision, PolicyInput, PushReward, QMaps, grasp_reward, trial_grasps};
+use actor::{Decision, PushReward, QMaps, grasp_reward, trial_grasps};
 use agent::{Agent, Choice};
 use anyhow::{Context, Result};
 use buffer::Transition;
@@ -355,14 +355,9 @@ pub fn run(
                 shipper.ship(p, Some(&decision))?;
             }
             if decision.action.primitive == Primitive::Grasp && config.grasp_trials > 0 {
-                let input = PolicyInput {
-                    obs: &obs,
-                    goal,
-                    grasp: &grasp,
-                    push: push.as_ref(),
-                    pushes_so_far: step as usize,
-                };
-                for trial in trial_grasps(&input, &decision, config.grasp_trials, &mut rng)? {
+                let trials =
+                    trial_grasps(&obs, goal, &grasp, &decision, config.grasp_trials, &mut rng)?;
+                for trial in trials {
                     let outcome = tabletop.replica().act(&trial.action, &obs)?;
                     let transition = Transition {
                         episode: id.trial(report.trials),
