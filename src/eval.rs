@@ -10,8 +10,8 @@ use agent::evaluate::CaseReport;
 use agent::{Agent, CaseMetrics, EvalConfig, RunOutcome, RunRecord, Scene};
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use learner::Checkpoint;
 use learner::checkpoint::config_hash;
+use learner::{Checkpoint, SavedNets};
 use serde::Serialize;
 use sim::Arrangement;
 
@@ -224,7 +224,9 @@ pub fn load_agent(
             .context("--checkpoint has no parent directory; name the config with --config")?,
     };
     let config = RunConfig::load(&config_path)?;
-    let (manifest, weights) = Checkpoint::at(checkpoint)
+    let SavedNets {
+        manifest, weights, ..
+    } = Checkpoint::at(checkpoint)
         .load(&config_hash(&config.net))
         .with_context(|| format!("the nets of {}", config_path.display()))?;
     if manifest.side != config.side() {

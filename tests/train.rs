@@ -554,6 +554,11 @@ fn a_snapshot_on_request_then_ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_
         u(&second["learner"]["updates"]) > updates,
         "the learner restarted its count instead of continuing"
     );
+    assert_eq!(
+        u(&second["learner"]["session_updates"]),
+        u(&second["learner"]["updates"]) - updates,
+        "the resumed learner's own updates are the run's beyond the checkpoint's"
+    );
     assert_lossless(logs.path(), "int");
 }
 

@@ -7,6 +7,9 @@ use serde::{Deserialize, Serialize};
 pub struct LearningConfig {
     /// Adam's step size.
     pub learning_rate: f64,
+    /// A step size falling geometrically from `learning_rate` (none: constant, as the
+    /// paper).
+    pub lr_decay: Option<LrDecay>,
     /// L2 weight decay (the paper prints 2^-5; the authors' code uses 2e-5).
     pub weight_decay: f32,
     pub beta_1: f32,
@@ -15,22 +18,37 @@ pub struct LearningConfig {
     pub gamma: f32,
     /// Where the Huber loss turns from quadratic to linear.
     pub huber_delta: f32,
-    /// Polyak averaging: each update moves the published nets (what actors act and
-    /// bootstrap with, and what checkpoints hold) this fraction of the way to the trained
-    /// ones. 1 publishes the trained nets themselves, as the paper.
+    /// Polyak averaging: each update moves an average of the trained nets this fraction of
+    /// the way to them (all the way while fewer than 1 / rate updates have been taken, so
+    /// the average starts as a plain mean instead of leaning on the first nets).
+    /// Checkpoints hold the average; 1 keeps no average, as the paper.
     pub polyak_rate: f32,
+    /// Whether actors also act and bootstrap with the average (else with the trained nets,
+    /// and only checkpoints hold the average).
+    pub publish_average: bool,
 }
 
 impl Default for LearningConfig {
     fn default() -> Self {
         Self {
             learning_rate: 1e-4,
+            lr_decay: None,
             weight_decay: 2e-5,
             beta_1: 0.9,
             beta_2: 0.99,
             gamma: 0.5,
             huber_delta: 1.0,
             polyak_rate: 1.0,
+            publish_average: true,
         }
     }
+}
+
+/// A step size that falls from the config's `learning_rate` to `to` over `over_updates`
+/// learner updates, by the same factor each update, and stays at `to` after them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LrDecay {
+    pub to: f64,
+    pub over_updates: u64,
 }

@@ -10,7 +10,7 @@ pub mod error;
 pub mod label;
 pub mod trainer;
 
-pub use checkpoint::{Checkpoint, Manifest};
-pub use config::LearningConfig;
+pub use checkpoint::{Checkpoint, Manifest, SavedNets};
+pub use config::{LearningConfig, LrDecay};
 pub use error::LearnerError;
 pub use trainer::{Sample, StepReport, TrainedNet, Trainer, executed_pixel_loss};

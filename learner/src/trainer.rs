@@ -12,6 +12,7 @@ use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use sim::{Action, Primitive, ROTATIONS};
 
 use crate::averaging::polyak_step;
+use crate::checkpoint::SavedNets;
 use crate::config::LearningConfig;
 use crate::error::LearnerError;
 
@@ -60,6 +61,8 @@ pub struct Trainer {
     nets: QNets,
     /// The Polyak average of `nets` in inference form, when the config averages.
     average: Option<QNets>,
+    /// Updates folded into `average` since it (re)started.
+    averaged: u64,
     optimiser: ModuleOptimizer,
     geometry: Geometry,
     config: LearningConfig,
@@ -88,6 +91,7 @@ impl Trainer {
         let mut trainer = Self {
             nets,
             average,
+            averaged: 0,
             optimiser,
             geometry: Geometry::new(side, net_config),
             config: config.clone(),
@@ -118,7 +122,7 @@ impl Trainer {
         self.trained
     }
 
-    /// Updates taken so far.
+    /// Updates taken so far in the run (a resumed run counts on from its checkpoint).
     pub fn updates(&self) -> u64 {
         self.updates
     }
@@ -127,13 +131,35 @@ impl Trainer {
         &self.geometry
     }
 
-    /// The nets to publish, in inference form (no autodiff, batch norm on its running
-    /// statistics), for the actor, its bootstrap values and checkpoints: the Polyak average
-    /// when the config averages, else the trained nets.
-    pub fn inference_nets(&self) -> QNets {
+    /// The nets to publish to actors, for acting and their bootstrap values, in inference
+    /// form (no autodiff, batch norm on its running statistics): the Polyak average when the
+    /// config averages and publishes it, else the trained nets.
+    pub fn published_nets(&self) -> QNets {
         match &self.average {
-            Some(average) => average.clone(),
-            None => self.nets.valid(),
+            Some(average) if self.config.publish_average => average.clone(),
+            _ => self.nets.valid(),
+        }
+    }
+
+    /// What a checkpoint holds: the nets to use (the Polyak average when the config
+    /// averages, else the trained nets), and the trained nets when those are the average.
+    pub fn checkpoint_weights(&self) -> Result<(Vec<u8>, Option<Vec<u8>>), LearnerError> {
+        Ok(match &self.average {
+            Some(average) => (average.to_bytes()?, Some(self.nets.valid().to_bytes()?)),
+            None => (self.nets.valid().to_bytes()?, None),
+        })
+    }
+
+    /// The step size of the next update: `learning_rate`, falling geometrically to the
+    /// decay's end over its updates when the config decays it.
+    pub fn learning_rate(&self) -> f64 {
+        let start = self.config.learning_rate;
+        match &self.config.lr_decay {
+            Some(decay) if decay.over_updates > 0 => {
+                let done = (self.updates as f64 / decay.over_updates as f64).min(1.0);
+                start * (decay.to / start).powf(done)
+            }
+            _ => start,
         }
     }
 
@@ -187,14 +213,13 @@ impl Trainer {
         let grads = GradientsParams::from_grads(loss.backward(), &self.nets);
         self.nets = self
             .optimiser
-            .step(self.config.learning_rate, self.nets.clone(), grads);
+            .step(self.learning_rate(), self.nets.clone(), grads);
         self.updates += 1;
         if let Some(average) = self.average.take() {
-            self.average = Some(polyak_step(
-                average,
-                &self.nets.valid(),
-                self.config.polyak_rate,
-            ));
+            // A plain mean of the updates so far until there are 1 / rate of them.
+            self.averaged += 1;
+            let rate = self.config.polyak_rate.max(1.0 / self.averaged as f32);
+            self.average = Some(polyak_step(average, &self.nets.valid(), rate));
         }
 
         // Report each sample's own rotation (the first of its items).
@@ -211,13 +236,29 @@ impl Trainer {
         })
     }
 
-    /// Replaces the weights (a resumed checkpoint), and restarts any average from them.
+    /// Starts from other weights (an earlier stage's nets), and restarts any average from
+    /// them.
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
         self.nets = self.nets.clone().load_bytes(bytes)?;
         self.set_trained(self.trained);
         if self.average.is_some() {
             self.average = Some(self.nets.valid());
+            self.averaged = 0;
         }
+        Ok(())
+    }
+
+    /// Continues a run from its checkpoint: the nets it holds, the trained nets when they
+    /// were kept apart from an average, and the updates taken, so the average and the step
+    /// size go on where they were.
+    pub fn resume(&mut self, saved: &SavedNets) -> Result<(), LearnerError> {
+        self.load_weights(saved.trained.as_deref().unwrap_or(&saved.weights))?;
+        if self.average.is_some() {
+            let average = self.nets.valid().load_bytes(&saved.weights)?;
+            self.average = Some(average);
+            self.averaged = saved.manifest.updates;
+        }
+        self.updates = saved.manifest.updates;
         Ok(())
     }
 }

@@ -6,7 +6,8 @@ use burn::prelude::*;
 use learner::checkpoint::config_hash;
 use learner::label::{grasp_label, push_label};
 use learner::{
-    Checkpoint, LearningConfig, Manifest, Sample, TrainedNet, Trainer, executed_pixel_loss,
+    Checkpoint, LearningConfig, LrDecay, Manifest, Sample, SavedNets, TrainedNet, Trainer,
+    executed_pixel_loss,
 };
 use qnet::{NetInput, QNetConfig, QNets};
 use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
@@ -17,13 +18,18 @@ fn weights(net: &qnet::PrimitiveNet) -> Vec<u8> {
 }
 
 fn trainer(trained: TrainedNet) -> Trainer {
+    trainer_with(LearningConfig::default(), trained)
+}
+
+fn trainer_with(learning: LearningConfig, trained: TrainedNet) -> Trainer {
     let config = QNetConfig::default();
     let device = Device::flex();
+    device.seed(5);
     Trainer::new(
         QNets::new(&config, &device),
         &config,
         112,
-        &LearningConfig::default(),
+        &learning,
         trained,
         &device,
     )
@@ -120,13 +126,13 @@ fn bootstrap_values_are_clamped_to_what_a_state_can_be_worth() {
 #[test]
 fn a_frozen_net_does_not_change_and_refuses_samples() {
     let mut trainer = trainer(TrainedNet::Grasp);
-    let push_before = weights(&trainer.inference_nets().push);
-    let grasp_before = weights(&trainer.inference_nets().grasp);
+    let push_before = weights(&trainer.published_nets().push);
+    let grasp_before = weights(&trainer.published_nets().grasp);
     for _ in 0..3 {
         trainer.train_step(&samples(Primitive::Grasp, 1.0)).unwrap();
     }
-    let push_after = weights(&trainer.inference_nets().push);
-    let grasp_after = weights(&trainer.inference_nets().grasp);
+    let push_after = weights(&trainer.published_nets().push);
+    let grasp_after = weights(&trainer.published_nets().grasp);
     assert_eq!(
         push_before, push_after,
         "the frozen push net is untouched, trunks included"
@@ -139,7 +145,7 @@ fn a_frozen_net_does_not_change_and_refuses_samples() {
 
     trainer.set_trained(TrainedNet::Push);
     trainer.train_step(&samples(Primitive::Push, 0.5)).unwrap();
-    let grasp_frozen = weights(&trainer.inference_nets().grasp);
+    let grasp_frozen = weights(&trainer.published_nets().grasp);
     assert_eq!(grasp_after, grasp_frozen);
 }
 
@@ -157,45 +163,77 @@ fn parameters(nets: &QNets) -> Vec<f32> {
     collect.0
 }
 
-#[test]
-fn published_nets_are_the_polyak_average_of_the_trained_ones() {
-    let config = QNetConfig::default();
-    let device = Device::flex();
-    let start = QNets::new(&config, &device);
-    let trainer = |polyak_rate: f32| {
-        let learning = LearningConfig {
-            polyak_rate,
-            ..LearningConfig::default()
-        };
-        Trainer::new(
-            start.clone(),
-            &config,
-            112,
-            &learning,
-            TrainedNet::Grasp,
-            &device,
-        )
+fn averaging(polyak_rate: f32, publish_average: bool) -> Trainer {
+    let learning = LearningConfig {
+        polyak_rate,
+        publish_average,
+        ..LearningConfig::default()
     };
-    let (mut plain, mut averaged) = (trainer(1.0), trainer(0.25));
-    let batch = samples(Primitive::Grasp, 1.5);
-    plain.train_step(&batch).unwrap();
-    averaged.train_step(&batch).unwrap();
+    trainer_with(learning, TrainedNet::Grasp)
+}
 
-    let before = parameters(&start);
-    let trained = parameters(&plain.inference_nets());
-    let published = parameters(&averaged.inference_nets());
-    let moved = before.iter().zip(&trained).filter(|(b, t)| b != t).count();
-    assert!(
-        moved > 1000,
-        "one update moves the grasp net ({moved} values moved)"
-    );
-    for (i, ((b, t), p)) in before.iter().zip(&trained).zip(&published).enumerate() {
-        let want = b + 0.25 * (t - b);
+fn assert_close(got: &[f32], want: &[f32]) {
+    assert_eq!(got.len(), want.len());
+    for (i, (g, w)) in got.iter().zip(want).enumerate() {
         assert!(
-            (p - want).abs() <= 1e-5 * (1.0 + want.abs()),
-            "value {i}: {p}, want {want}"
+            (g - w).abs() <= 1e-5 * (1.0 + w.abs()),
+            "value {i}: {g}, want {w}"
         );
     }
+}
+
+#[test]
+fn the_polyak_average_is_a_plain_mean_until_one_over_the_rate_updates_then_moves_by_the_rate() {
+    // The same start and batches: the averaging trainer's trained nets are the plain one's.
+    let (mut plain, mut averaged) = (trainer(TrainedNet::Grasp), averaging(0.5, true));
+    let batch = samples(Primitive::Grasp, 1.5);
+    let mut trained = Vec::new();
+    for _ in 0..3 {
+        plain.train_step(&batch).unwrap();
+        averaged.train_step(&batch).unwrap();
+        trained.push(parameters(&plain.published_nets()));
+    }
+    let moved = trained[0]
+        .iter()
+        .zip(&trained[1])
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(moved > 1000, "updates move the grasp net ({moved} values)");
+
+    // After updates 1 and 2 the mean of the trained nets (rate 1, then 1/2); after the
+    // third, the rate itself: the average moves half way to the third nets.
+    let mean: Vec<f32> = trained[0]
+        .iter()
+        .zip(&trained[1])
+        .map(|(a, b)| (a + b) / 2.0)
+        .collect();
+    let want: Vec<f32> = mean
+        .iter()
+        .zip(&trained[2])
+        .map(|(m, t)| m + 0.5 * (t - m))
+        .collect();
+    assert_close(&parameters(&averaged.published_nets()), &want);
+}
+
+#[test]
+fn an_average_kept_for_checkpoints_alone_leaves_the_actors_the_trained_nets() {
+    let mut trainer = averaging(0.5, false);
+    let batch = samples(Primitive::Grasp, 1.5);
+    trainer.train_step(&batch).unwrap();
+    let first = parameters(&trainer.published_nets());
+    trainer.train_step(&batch).unwrap();
+    let second = parameters(&trainer.published_nets());
+    assert_ne!(first, second, "actors get the newest trained nets");
+
+    let (weights, trained) = trainer.checkpoint_weights().unwrap();
+    let nets = |bytes: &[u8]| parameters(&trainer.published_nets().load_bytes(bytes).unwrap());
+    let mean: Vec<f32> = first
+        .iter()
+        .zip(&second)
+        .map(|(a, b)| (a + b) / 2.0)
+        .collect();
+    assert_close(&nets(&weights), &mean);
+    assert!(nets(&trained.expect("the trained nets are kept")) == second);
 }
 
 #[test]
@@ -218,23 +256,31 @@ fn checkpoints_round_trip_to_identical_q_maps() {
     trained.train_step(&samples(Primitive::Grasp, 1.0)).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let checkpoint = Checkpoint::at(dir.path().join("ckpt"));
-    let manifest = Manifest {
-        stage: 1,
-        updates: trained.updates(),
-        side: 112,
-        config_hash: config_hash(&config),
+    let (weights, trained_nets) = trained.checkpoint_weights().unwrap();
+    assert_eq!(
+        trained_nets, None,
+        "without an average the weights are the trained nets"
+    );
+    let saved = SavedNets {
+        manifest: Manifest {
+            stage: 1,
+            updates: trained.updates(),
+            side: 112,
+            config_hash: config_hash(&config),
+        },
+        weights,
+        trained: None,
     };
-    checkpoint
-        .save(&manifest, &trained.inference_nets().to_bytes().unwrap())
-        .unwrap();
+    checkpoint.save(&saved).unwrap();
 
-    let (read, weights) = checkpoint.load(&config_hash(&config)).unwrap();
-    assert_eq!(read, manifest);
+    let read = checkpoint.load(&config_hash(&config)).unwrap();
+    assert_eq!(read, saved);
     let mut resumed = trainer(TrainedNet::Grasp);
-    resumed.load_weights(&weights).unwrap();
+    resumed.resume(&read).unwrap();
+    assert_eq!(resumed.updates(), trained.updates());
     let input = &samples(Primitive::Grasp, 1.0)[0].input;
     let q = |t: &Trainer| {
-        t.inference_nets()
+        t.published_nets()
             .all_rotations(Primitive::Grasp, input, t.geometry())
             .unwrap()
     };
@@ -249,6 +295,92 @@ fn checkpoints_round_trip_to_identical_q_maps() {
         error.to_string().contains("manifest.toml") && error.to_string().contains("config_hash"),
         "{error}"
     );
+}
+
+#[test]
+fn a_resumed_average_goes_on_from_both_nets_and_the_update_count() {
+    let mut first = averaging(0.1, false);
+    let batch = samples(Primitive::Grasp, 1.5);
+    for _ in 0..3 {
+        first.train_step(&batch).unwrap();
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let checkpoint = Checkpoint::at(dir.path().join("ckpt"));
+    let (weights, trained) = first.checkpoint_weights().unwrap();
+    let saved = SavedNets {
+        manifest: Manifest {
+            stage: 1,
+            updates: first.updates(),
+            side: 112,
+            config_hash: config_hash(&QNetConfig::default()),
+        },
+        weights,
+        trained,
+    };
+    checkpoint.save(&saved).unwrap();
+    assert!(dir.path().join("ckpt/trained.bpk").exists());
+
+    let mut resumed = averaging(0.1, false);
+    resumed
+        .resume(&checkpoint.load(&saved.manifest.config_hash).unwrap())
+        .unwrap();
+    assert_eq!(resumed.updates(), 3);
+    // Both nets come back: the average for checkpoints, the trained nets for the actors.
+    let nets =
+        |t: &Trainer, bytes: &[u8]| parameters(&t.published_nets().load_bytes(bytes).unwrap());
+    let (average, trained) = resumed.checkpoint_weights().unwrap();
+    assert!(nets(&resumed, &average) == nets(&first, &saved.weights));
+    assert!(nets(&resumed, &trained.unwrap()) == nets(&first, saved.trained.as_ref().unwrap()));
+    assert!(parameters(&resumed.published_nets()) == parameters(&first.published_nets()));
+    assert!(nets(&first, &saved.weights) != parameters(&first.published_nets()));
+
+    // A checkpoint written later without an average drops the stale trained nets.
+    checkpoint
+        .save(&SavedNets {
+            trained: None,
+            ..saved
+        })
+        .unwrap();
+    assert!(!dir.path().join("ckpt/trained.bpk").exists());
+}
+
+#[test]
+fn a_decaying_step_size_falls_geometrically_to_its_end_and_stays() {
+    let learning = LearningConfig {
+        learning_rate: 1e-3,
+        lr_decay: Some(LrDecay {
+            to: 1e-5,
+            over_updates: 100,
+        }),
+        ..LearningConfig::default()
+    };
+    let mut trainer = trainer_with(learning, TrainedNet::Grasp);
+    assert_eq!(trainer.learning_rate(), 1e-3);
+    let resume_at = |trainer: &mut Trainer, updates: u64| {
+        let (weights, trained) = trainer.checkpoint_weights().unwrap();
+        let manifest = Manifest {
+            stage: 1,
+            updates,
+            side: 112,
+            config_hash: String::new(),
+        };
+        trainer
+            .resume(&SavedNets {
+                manifest,
+                weights,
+                trained,
+            })
+            .unwrap();
+        trainer.learning_rate()
+    };
+    let halfway = resume_at(&mut trainer, 50);
+    assert!((halfway - 1e-4).abs() < 1e-9, "{halfway}");
+    for after in [100, 400] {
+        let lr = resume_at(&mut trainer, after);
+        assert!((lr - 1e-5).abs() < 1e-12, "{after} updates: {lr}");
+    }
+    trainer.train_step(&samples(Primitive::Grasp, 1.0)).unwrap();
+    assert_eq!(trainer.updates(), 401);
 }
 
 #[test]

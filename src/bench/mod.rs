@@ -264,7 +264,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             TrainedNet::Grasp,
             &device,
         );
-        let nets = trainer.inference_nets();
+        let nets = trainer.published_nets();
         let geometry = trainer.geometry().clone();
         let infer = median(
             (0..reps)

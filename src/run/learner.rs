@@ -14,7 +14,7 @@ use anyhow::{Result, bail};
 use buffer::Transition;
 use learner::checkpoint::config_hash;
 use learner::label::{grasp_label, push_label};
-use learner::{Checkpoint, Manifest, Sample, Trainer};
+use learner::{Checkpoint, Manifest, Sample, SavedNets, Trainer};
 use mcaplog::RunLog;
 use qnet::{NetInput, QNets};
 use serde::{Deserialize, Serialize};
@@ -77,7 +77,7 @@ struct LearnerRole<'a> {
 
 impl LearnerRole<'_> {
     fn updates(&self) -> u64 {
-        self.updates_before + self.trainer.updates()
+        self.trainer.updates()
     }
 
     fn publish(&mut self, weights: &mut Outbox) -> Result<()> {
@@ -85,21 +85,24 @@ impl LearnerRole<'_> {
         weights.send(&Message::Weights(Weights {
             version,
             stage: self.config.stage,
-            bytes: self.trainer.inference_nets().to_bytes()?,
+            bytes: self.trainer.published_nets().to_bytes()?,
         }))?;
         self.report.weights_version = version;
         Ok(())
     }
 
     fn save_checkpoint(&mut self) -> Result<()> {
-        let manifest = Manifest {
-            stage: self.config.stage,
-            updates: self.updates(),
-            side: self.config.side(),
-            config_hash: config_hash(&self.config.net),
-        };
-        self.checkpoint
-            .save(&manifest, &self.trainer.inference_nets().to_bytes()?)?;
+        let (weights, trained) = self.trainer.checkpoint_weights()?;
+        self.checkpoint.save(&SavedNets {
+            manifest: Manifest {
+                stage: self.config.stage,
+                updates: self.updates(),
+                side: self.config.side(),
+                config_hash: config_hash(&self.config.net),
+            },
+            weights,
+            trained,
+        })?;
         self.report.checkpoints += 1;
         Ok(())
     }
@@ -184,7 +187,8 @@ pub fn run(
         report: LearnerReport::default(),
     };
     if resume && role.checkpoint.dir().join("manifest.toml").exists() {
-        let (manifest, bytes) = role.checkpoint.load(&config_hash(&config.net))?;
+        let saved = role.checkpoint.load(&config_hash(&config.net))?;
+        let manifest = &saved.manifest;
         if manifest.stage != config.stage || manifest.side != config.side() {
             bail!(
                 "{}: the checkpoint is of stage {} at {} px; this run is stage {} at {} px",
@@ -195,20 +199,20 @@ pub fn run(
                 config.side()
             );
         }
-        role.trainer.load_weights(&bytes)?;
+        role.trainer.resume(&saved)?;
         role.updates_before = manifest.updates;
     } else if let Some(init) = &config.init_from {
         // An earlier stage's nets: its weights, this stage's fresh update count.
-        let (manifest, bytes) = Checkpoint::at(init).load(&config_hash(&config.net))?;
-        if manifest.side != config.side() {
+        let saved = Checkpoint::at(init).load(&config_hash(&config.net))?;
+        if saved.manifest.side != config.side() {
             bail!(
                 "init_from {}: the nets were trained at {} px; this run is at {} px",
                 init.display(),
-                manifest.side,
+                saved.manifest.side,
                 config.side()
             );
         }
-        role.trainer.load_weights(&bytes)?;
+        role.trainer.load_weights(&saved.weights)?;
     }
     let mut control = Inbox::open(transport, Topic::Control)?;
     let mut batches = Inbox::open(transport, Topic::Batches)?;
@@ -270,7 +274,7 @@ pub fn run(
     }
     role.save_checkpoint()?;
     role.report.updates = role.updates();
-    role.report.session_updates = role.trainer.updates();
+    role.report.session_updates = role.trainer.updates() - role.updates_before;
     role.report.training_s = first_batch.map_or(0.0, |t| t.elapsed().as_secs_f64());
     status.send(&Message::Status(Status::Learner {
         updates: role.report.updates,
