@@ -172,15 +172,18 @@ fn print_table(report: &EvalReport) {
         }
     );
     println!(
-        "{:18} {:>11} {:>14} {:>14}",
-        "case", "completion", "grasp success", "motion number"
+        "{:18} {:>11} {:>20} {:>14}",
+        "case", "completion", "grasp success (se)", "motion number"
     );
     let percent = |x: Option<f64>| x.map_or("-".into(), |x| format!("{:.1}%", 100.0 * x));
     let row = |name: &str, m: &CaseMetrics| {
+        let se = m
+            .grasp_success_se
+            .map_or(String::new(), |se| format!(" ({:.1})", 100.0 * se));
         println!(
-            "{name:18} {:>11} {:>14} {:>14}",
+            "{name:18} {:>11} {:>20} {:>14}",
             percent(Some(m.completion)),
-            percent(m.grasp_success),
+            percent(m.grasp_success) + &se,
             m.motion_number.map_or("-".into(), |x| format!("{x:.2}"))
         );
     };

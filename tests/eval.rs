@@ -63,6 +63,11 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             case["complete_runs"].as_u64().unwrap() > 0,
             case["motion_number"].is_number()
         );
+        // ... and its standard error when two did.
+        assert_eq!(
+            case["complete_runs"].as_u64().unwrap() >= 2,
+            case["grasp_success_se"].is_number()
+        );
     }
     // Every run is written out, and its outcome agrees with its case's figures.
     let lines: Vec<Value> = std::fs::read_to_string(&runs_json)

@@ -110,6 +110,11 @@ pub struct CaseMetrics {
     pub complete_runs: usize,
     pub completion: f64,
     pub grasp_success: Option<f64>,
+    /// The standard error of `grasp_success`, from the spread of the complete runs' own
+    /// success: how far other jitters or random scenes (another eval seed) would move it for
+    /// the same nets. `None` below two complete runs.
+    #[serde(default)]
+    pub grasp_success_se: Option<f64>,
     pub motion_number: Option<f64>,
 }
 
@@ -120,26 +125,49 @@ impl CaseMetrics {
             (!complete.is_empty())
                 .then(|| complete.iter().map(|o| f(o)).sum::<f64>() / complete.len() as f64)
         };
+        let success = |o: &RunOutcome| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64;
+        let grasp_success = mean(&success);
+        let grasp_success_se = grasp_success.filter(|_| complete.len() >= 2).map(|m| {
+            let n = complete.len() as f64;
+            let variance = complete
+                .iter()
+                .map(|o| (success(o) - m).powi(2))
+                .sum::<f64>()
+                / (n - 1.0);
+            (variance / n).sqrt()
+        });
         CaseMetrics {
             runs: outcomes.len(),
             complete_runs: complete.len(),
             completion: complete.len() as f64 / outcomes.len().max(1) as f64,
-            grasp_success: mean(&|o| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64),
+            grasp_success,
+            grasp_success_se,
             motion_number: mean(&|o| o.actions as f64),
         }
     }
 
     /// The mean of several cases' figures, as the paper averages its cases (a case with no
-    /// complete run leaves grasp success and motion number to the others).
+    /// complete run leaves grasp success and motion number to the others). The cases' runs
+    /// are independent, so the mean's standard error is the root of their squared errors'
+    /// sum over their count; `None` if a case in the mean has none.
     pub fn average(cases: &[CaseMetrics]) -> Self {
         let mean = |values: Vec<f64>| {
             (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
         };
+        let succeeding: Vec<&CaseMetrics> =
+            cases.iter().filter(|c| c.grasp_success.is_some()).collect();
+        let grasp_success_se = succeeding
+            .iter()
+            .map(|c| c.grasp_success_se.map(|se| se * se))
+            .sum::<Option<f64>>()
+            .filter(|_| !succeeding.is_empty())
+            .map(|squares| squares.sqrt() / succeeding.len() as f64);
         CaseMetrics {
             runs: cases.iter().map(|c| c.runs).sum(),
             complete_runs: cases.iter().map(|c| c.complete_runs).sum(),
             completion: mean(cases.iter().map(|c| c.completion).collect()).unwrap_or(0.0),
-            grasp_success: mean(cases.iter().filter_map(|c| c.grasp_success).collect()),
+            grasp_success: mean(succeeding.iter().filter_map(|c| c.grasp_success).collect()),
+            grasp_success_se,
             motion_number: mean(cases.iter().filter_map(|c| c.motion_number).collect()),
         }
     }

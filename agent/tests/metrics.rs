@@ -105,15 +105,28 @@ fn case_figures_average_over_complete_runs_only() {
     assert_eq!((case.runs, case.complete_runs), (4, 3));
     assert!((case.completion - 0.75).abs() < 1e-12);
     assert!((case.grasp_success.unwrap() - (1.0 + 0.5 + 0.5) / 3.0).abs() < 1e-12);
+    // The complete runs' successes 1, 1/2, 1/2: sample variance 1/12, over 3 runs.
+    let se = (1.0f64 / 12.0 / 3.0).sqrt();
+    assert!((case.grasp_success_se.unwrap() - se).abs() < 1e-12);
     assert!((case.motion_number.unwrap() - 3.0).abs() < 1e-12);
 
     let none_complete = CaseMetrics::of(&outcomes[2..3]);
     assert_eq!(none_complete.completion, 0.0);
     assert_eq!(none_complete.grasp_success, None);
+    assert_eq!(none_complete.grasp_success_se, None);
     let mean = CaseMetrics::average(&[case, none_complete]);
     assert!((mean.completion - 0.375).abs() < 1e-12);
     assert_eq!(mean.grasp_success, case.grasp_success);
+    assert_eq!(mean.grasp_success_se, case.grasp_success_se);
     assert_eq!(mean.runs, 5);
+    // Two cases with errors: the mean's error is the root of the squares' sum over 2.
+    let two = CaseMetrics::average(&[case, case]);
+    assert!((two.grasp_success_se.unwrap() - se / 2f64.sqrt()).abs() < 1e-12);
+    // One complete run has no spread to measure, and a mean over it has no error either.
+    let single = CaseMetrics::of(&outcomes[..1]);
+    assert_eq!(single.complete_runs, 1);
+    assert_eq!(single.grasp_success_se, None);
+    assert_eq!(CaseMetrics::average(&[case, single]).grasp_success_se, None);
 }
 
 #[test]
