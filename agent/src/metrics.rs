@@ -11,6 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 use sim::{ANY_OBJECT, ObjectId, Primitive};
+use sweep::mean_and_spread;
 
 /// Failed grasp attempts in a row that end a run incomplete.
 pub const MAX_FAILED_GRASPS: usize = 10;
@@ -125,22 +126,19 @@ impl CaseMetrics {
             (!complete.is_empty())
                 .then(|| complete.iter().map(|o| f(o)).sum::<f64>() / complete.len() as f64)
         };
-        let success = |o: &RunOutcome| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64;
-        let grasp_success = mean(&success);
-        let grasp_success_se = grasp_success.filter(|_| complete.len() >= 2).map(|m| {
-            let n = complete.len() as f64;
-            let variance = complete
-                .iter()
-                .map(|o| (success(o) - m).powi(2))
-                .sum::<f64>()
-                / (n - 1.0);
-            (variance / n).sqrt()
-        });
+        let successes: Vec<f64> = complete
+            .iter()
+            .map(|o| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64)
+            .collect();
+        let spread = mean_and_spread(&successes);
+        let grasp_success_se = spread
+            .filter(|_| successes.len() >= 2)
+            .map(|(_, sd)| sd / (successes.len() as f64).sqrt());
         CaseMetrics {
             runs: outcomes.len(),
             complete_runs: complete.len(),
             completion: complete.len() as f64 / outcomes.len().max(1) as f64,
-            grasp_success,
+            grasp_success: spread.map(|(mean, _)| mean),
             grasp_success_se,
             motion_number: mean(&|o| o.actions as f64),
         }

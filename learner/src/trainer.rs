@@ -61,8 +61,6 @@ pub struct Trainer {
     nets: QNets,
     /// The Polyak average of `nets` in inference form, when the config averages.
     average: Option<QNets>,
-    /// Updates folded into `average` since it (re)started.
-    averaged: u64,
     optimiser: ModuleOptimizer,
     geometry: Geometry,
     config: LearningConfig,
@@ -91,7 +89,6 @@ impl Trainer {
         let mut trainer = Self {
             nets,
             average,
-            averaged: 0,
             optimiser,
             geometry: Geometry::new(side, net_config),
             config: config.clone(),
@@ -216,9 +213,8 @@ impl Trainer {
             .step(self.learning_rate(), self.nets.clone(), grads);
         self.updates += 1;
         if let Some(average) = self.average.take() {
-            // A plain mean of the updates so far until there are 1 / rate of them.
-            self.averaged += 1;
-            let rate = self.config.polyak_rate.max(1.0 / self.averaged as f32);
+            // A plain mean of the run's updates until there are 1 / rate of them.
+            let rate = self.config.polyak_rate.max(1.0 / self.updates as f32);
             self.average = Some(polyak_step(average, &self.nets.valid(), rate));
         }
 
@@ -243,7 +239,6 @@ impl Trainer {
         self.set_trained(self.trained);
         if self.average.is_some() {
             self.average = Some(self.nets.valid());
-            self.averaged = 0;
         }
         Ok(())
     }
@@ -256,7 +251,6 @@ impl Trainer {
         if self.average.is_some() {
             let average = self.nets.valid().load_bytes(&saved.weights)?;
             self.average = Some(average);
-            self.averaged = saved.manifest.updates;
         }
         self.updates = saved.manifest.updates;
         Ok(())
