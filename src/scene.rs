@@ -124,7 +124,8 @@ pub struct RenderArgs {
 pub struct ConvertArgs {
     /// The original-format file.
     file: PathBuf,
-    /// The goal's slot (line index from 0, as the paper numbers them).
+    /// The goal's slot (line index from 0, as the paper numbers them), for files that do not
+    /// name their goal.
     #[arg(long)]
     goal_slot: Option<u8>,
     /// Add the authors' +0.1 m y offset.
@@ -174,6 +175,13 @@ fn convert(args: &ConvertArgs) -> Result<()> {
         arrangement.name = Some(name.clone());
     }
     if let Some(slot) = args.goal_slot {
+        if let Some(goal) = arrangement.goal {
+            bail!(
+                "{}: the file names its goal (object {goal}, slot {}); --goal-slot is for files that do not",
+                args.file.display(),
+                goal - 1
+            );
+        }
         let goal = slot
             .checked_add(1)
             .filter(|goal| arrangement.objects.iter().any(|o| o.id == *goal));
@@ -186,7 +194,7 @@ fn convert(args: &ConvertArgs) -> Result<()> {
         arrangement.goal = Some(goal);
     }
     println!(
-        "# Converted from {} by `pushgrasp scene convert`.\n# Ids are the original slots + 1; positions in metres, angles in radians (x, y, z of the moving frame).\n{}",
+        "# Converted from {} by `pushgrasp scene convert`.\n# Ids are the original slots + 1; positions in metres, angles in radians (x, y, z of the moving frame);\n# colours as the file gives them, else the slot colours of our random scenes.\n{}",
         args.file.file_name().unwrap_or_default().to_string_lossy(),
         arrangement.to_toml()
     );

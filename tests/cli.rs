@@ -218,6 +218,26 @@ fn scene_convert_refuses_a_goal_off_the_table() {
 }
 
 #[test]
+fn scene_convert_keeps_a_named_goal_and_refuses_a_second_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = dir.path().join("named.txt");
+    std::fs::write(
+        &original,
+        "block 4.obj -0.6 0.0 0.026 0 0 0\nred 8.obj -0.5 0.0 0.026 0 0 0\n",
+    )
+    .unwrap();
+    let stdout = pushgrasp_ok(&["scene", "convert", path_arg(&original)]);
+    let converted = Arrangement::parse_toml(&stdout, Path::new("converted.toml"))
+        .unwrap_or_else(|e| panic!("{e}\n{stdout}"));
+    assert_eq!(converted.goal, Some(2), "{stdout}");
+    let stderr = pushgrasp_fails(&["scene", "convert", path_arg(&original), "--goal-slot", "0"]);
+    assert!(
+        stderr.contains("named.txt") && stderr.contains("names its goal"),
+        "{stderr}"
+    );
+}
+
+#[test]
 fn episode_writes_its_summary_and_observations() {
     let out = tempfile::tempdir().unwrap();
     pushgrasp_ok(&[

@@ -6,6 +6,11 @@
 //! slot; object ids are slot + 1, so the paper's goal slot g is object g + 1. Objects parked
 //! off the workspace are left out.
 //!
+//! The grasping-invisible test cases (Yang et al. 2020) use `<name> <mesh.obj> x y z rx ry rz`
+//! in the same frame: every object is named `block` but the goal, which is named by its
+//! colour. Those files give no RGB, so each object takes the slot colour our random scenes
+//! give the k-th object ([`SLOT_COLOURS`]); the name only marks the goal.
+//!
 //! Our TOML format also names the goal:
 //!
 //! ```toml
@@ -27,7 +32,7 @@ use rapier3d::glamx;
 use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::catalogue::ShapeKind;
+use crate::catalogue::{SLOT_COLOURS, ShapeKind};
 use crate::error::ArrangementError;
 use crate::tabletop::ObjectId;
 use crate::workspace;
@@ -43,6 +48,10 @@ pub struct OriginalOptions {
 const AUTHORS_Y_OFFSET: f32 = 0.1;
 /// Objects farther than this below or above the table are parked, not part of the scene.
 const PARKED_Z: f32 = 1.0;
+/// What the grasping-invisible format calls every object but the goal.
+const DISTRACTOR_NAME: &str = "block";
+/// The numbers of an original line, in order; the grasping-invisible format has the last six.
+const NUMBER_FIELDS: [&str; 9] = ["red", "green", "blue", "x", "y", "z", "rx", "ry", "rz"];
 
 /// A designed scene.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -126,91 +135,102 @@ impl Arrangement {
         }
     }
 
-    /// Parses the original test-case format; `path` names the source in errors.
+    /// Parses the original test-case formats (see the module's docs); `path` names the
+    /// source in errors.
     pub fn parse_original(
         text: &str,
         path: &Path,
         options: &OriginalOptions,
     ) -> Result<Self, ArrangementError> {
-        const FIELDS: [&str; 10] = [
-            "mesh", "red", "green", "blue", "x", "y", "z", "rx", "ry", "rz",
-        ];
         let at = |line: usize, message: String| ArrangementError::Line {
             path: path.to_path_buf(),
             line,
             message,
         };
         let mut objects = Vec::new();
+        // The named goal's line, name and id.
+        let mut goal: Option<(usize, &str, ObjectId)> = None;
         for (index, content) in text.lines().enumerate() {
             let line = index + 1;
             let fields: Vec<&str> = content.split_whitespace().collect();
-            if fields.len() != FIELDS.len() {
-                return Err(at(
-                    line,
-                    format!(
-                        "expected 10 fields `<mesh.obj> R G B x y z rx ry rz`, found {}",
-                        fields.len()
-                    ),
-                ));
-            }
-            let shape = ShapeKind::from_mesh_name(fields[0]).ok_or_else(|| {
+            let id = ObjectId::try_from(line)
+                .map_err(|_| at(line, "more than 255 object slots".to_string()))?;
+            let (name, mesh, numbers) = match fields.len() {
+                10 => (None, fields[0], &fields[1..]),
+                8 => (Some(fields[0]), fields[1], &fields[2..]),
+                n => {
+                    return Err(at(
+                        line,
+                        format!(
+                            "expected `<mesh.obj> R G B x y z rx ry rz` (10 fields) or `<name> <mesh.obj> x y z rx ry rz` (8), found {n} fields"
+                        ),
+                    ));
+                }
+            };
+            let shape = ShapeKind::from_mesh_name(mesh).ok_or_else(|| {
                 let known: Vec<&str> = ShapeKind::ALL.iter().map(|k| k.mesh_name()).collect();
                 at(
                     line,
                     format!(
-                        "mesh `{}` is not in the catalogue (known: {})",
-                        fields[0],
+                        "mesh `{mesh}` is not in the catalogue (known: {})",
                         known.join(", ")
                     ),
                 )
             })?;
-            let mut numbers = [0.0f32; 9];
-            for (i, value) in numbers.iter_mut().enumerate() {
-                let field = fields[i + 1];
-                *value = field
-                    .parse::<f32>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .ok_or_else(|| {
-                        at(
+            let numbers = parse_numbers(numbers).map_err(|message| at(line, message))?;
+            let (colour, pose) = match numbers.len() {
+                9 => {
+                    let rgb = [numbers[0], numbers[1], numbers[2]];
+                    if let Some(i) = rgb.iter().position(|c| !(0.0..=1.0).contains(c)) {
+                        return Err(at(
                             line,
                             format!(
-                                "field `{}` is not a finite number: `{field}`",
-                                FIELDS[i + 1]
+                                "colour field `{}` = {} is outside [0, 1]",
+                                NUMBER_FIELDS[i], rgb[i]
                             ),
-                        )
-                    })?;
-            }
-            if let Some(i) = numbers[..3].iter().position(|c| !(0.0..=1.0).contains(c)) {
-                return Err(at(
-                    line,
-                    format!(
-                        "colour field `{}` = {} is outside [0, 1]",
-                        FIELDS[i + 1],
-                        numbers[i]
-                    ),
-                ));
-            }
-            let id = ObjectId::try_from(line)
-                .map_err(|_| at(line, "more than 255 object slots".to_string()))?;
-            let mut position = [numbers[3], numbers[4], numbers[5]];
+                        ));
+                    }
+                    (rgb.map(|c| (c * 255.0).round() as u8), &numbers[3..])
+                }
+                _ => (SLOT_COLOURS[index % SLOT_COLOURS.len()], &numbers[..]),
+            };
+            let mut position = [pose[0], pose[1], pose[2]];
             if options.y_offset {
                 position[1] += AUTHORS_Y_OFFSET;
             }
-            if position[2].abs() > PARKED_Z || !workspace::contains(position[0], position[1]) {
+            let on_table =
+                position[2].abs() <= PARKED_Z && workspace::contains(position[0], position[1]);
+            if let Some(name) = name.filter(|&name| name != DISTRACTOR_NAME) {
+                if let Some((first, first_name, _)) = goal {
+                    return Err(at(
+                        line,
+                        format!(
+                            "`{name}` is a second goal (line {first} names `{first_name}`; every other object is `{DISTRACTOR_NAME}`)"
+                        ),
+                    ));
+                }
+                if !on_table {
+                    return Err(at(
+                        line,
+                        format!("the goal `{name}` lies off the workspace"),
+                    ));
+                }
+                goal = Some((line, name, id));
+            }
+            if !on_table {
                 continue;
             }
             objects.push(PlacedObject {
                 id,
                 shape,
-                colour: [0, 1, 2].map(|i| (numbers[i] * 255.0).round() as u8),
+                colour,
                 position,
-                euler_xyz: [numbers[6], numbers[7], numbers[8]],
+                euler_xyz: [pose[3], pose[4], pose[5]],
             });
         }
         Ok(Self {
             name: path.file_stem().map(|s| s.to_string_lossy().into_owned()),
-            goal: None,
+            goal: goal.map(|(_, _, id)| id),
             objects,
         })
     }
@@ -289,6 +309,22 @@ impl Arrangement {
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("arrangements always serialise")
     }
+}
+
+/// A line's numeric fields (the last `fields.len()` of [`NUMBER_FIELDS`]), or what is wrong.
+fn parse_numbers(fields: &[&str]) -> Result<Vec<f32>, String> {
+    let names = &NUMBER_FIELDS[NUMBER_FIELDS.len() - fields.len()..];
+    fields
+        .iter()
+        .zip(names)
+        .map(|(field, name)| {
+            field
+                .parse::<f32>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| format!("field `{name}` is not a finite number: `{field}`"))
+        })
+        .collect()
 }
 
 /// The 1-based line holding a byte offset.

@@ -1,6 +1,7 @@
 //! Arrangement files: the original test cases load as their lines say, rest as designed and
-//! stay put when physics takes over; our TOML files round-trip and match the originals; and
-//! malformed files are reported with their path and line.
+//! stay put when physics takes over; our TOML files round-trip and match the originals; the
+//! validation cases are held out from the challenging ones; and malformed files are reported
+//! with their path and line.
 //!
 //! The original files are read from `PUSHGRASP_TEST_CASES`, else from
 //! `../shared/reference/test-cases/` beside the checkout; tests that need them say they are
@@ -23,6 +24,8 @@ use sim::{
 const PAPER_DIR: &str = "Efficient_goal-oriented_push-grasping_synergy";
 /// The VPG test cases, all in the block catalogue.
 const VPG_DIR: &str = "visual-pushing-grasping";
+/// The grasping-invisible test cases, which name their goal (`<name> <mesh.obj> x y z rx ry rz`).
+const GRASPING_INVISIBLE_DIR: &str = "grasping-invisible/preset";
 /// The paper's goal slot for challenging cases 00..09.
 const CHALLENGING_GOAL_SLOTS: [ObjectId; 10] = [4, 7, 8, 7, 7, 3, 1, 7, 5, 9];
 
@@ -91,20 +94,27 @@ fn challenging_files() -> Vec<PathBuf> {
     files_starting_with(&dir, "challenging-")
 }
 
+/// `configs/validation/`: grasping-invisible coordination cases, converted.
+fn validation_files() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/validation");
+    files_starting_with(&dir, "coordination-")
+}
+
 fn load(path: &Path, options: &OriginalOptions) -> Arrangement {
     Arrangement::read(path, options).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The scenes designed to rest as they are: the original files when they are here, else our
-/// TOML copies of the paper's ten.
+/// TOML copies of the paper's ten; and the validation cases.
 fn designed_scenes() -> Vec<(PathBuf, Arrangement)> {
-    let files = match test_cases_dir() {
+    let mut files = match test_cases_dir() {
         Some(cases) => original_files(&cases),
         None => {
             eprintln!("using configs/arrangements/ instead of the original files");
             challenging_files()
         }
     };
+    files.extend(validation_files());
     files
         .into_iter()
         .map(|path| {
@@ -304,6 +314,125 @@ fn malformed_original_lines_are_reported_with_their_line() {
         let error = Arrangement::parse_original(&text, path, &options)
             .expect_err(&format!("{what}: should be refused"));
         assert_line_error(&error, "bad.txt", bad_line, says, what);
+    }
+}
+
+#[test]
+fn named_goal_lines_mark_the_goal_and_take_slot_colours() {
+    let text = "block 4.obj -0.6 0.0 0.026 0 0 0\n\
+                block 1.obj -0.5 5.0 0.026 0 0 0\n\
+                red 8.obj -0.5 0.0 0.026 0 0 0\n\
+                block 4.obj -0.4 0.0 0.026 0 0 0\n";
+    let arrangement =
+        Arrangement::parse_original(text, Path::new("named.txt"), &OriginalOptions::default())
+            .expect("loads");
+    assert_eq!(arrangement.goal, Some(3), "the line not named `block`");
+    assert_eq!(
+        ids(&arrangement.objects),
+        [1, 3, 4],
+        "line 2 is off the table"
+    );
+    for object in &arrangement.objects {
+        let slot = usize::from(object.id) - 1;
+        assert_eq!(
+            object.colour,
+            sim::SLOT_COLOURS[slot],
+            "object {}",
+            object.id
+        );
+    }
+    assert_eq!(
+        arrangement.objects[1].shape,
+        ShapeKind::from_mesh_name("8.obj").unwrap()
+    );
+    assert_eq!(arrangement.objects[1].position, [-0.5, 0.0, 0.026]);
+
+    let path = Path::new("goals.txt");
+    let options = OriginalOptions::default();
+    let cases = [
+        (
+            "two goals",
+            format!("{text}blue 4.obj -0.4 0.1 0.026 0 0 0\n"),
+            5,
+            "second goal",
+        ),
+        (
+            "goal off the table",
+            "block 4.obj -0.6 0.0 0.026 0 0 0\nred 8.obj -0.5 0.9 0.026 0 0 0\n".to_string(),
+            2,
+            "off the workspace",
+        ),
+        (
+            "x is not a number",
+            "red 8.obj west 0.0 0.026 0 0 0\n".to_string(),
+            1,
+            "`x`",
+        ),
+    ];
+    for (what, text, bad_line, says) in cases {
+        let error = Arrangement::parse_original(&text, path, &options)
+            .expect_err(&format!("{what}: should be refused"));
+        assert_line_error(&error, "goals.txt", bad_line, says, what);
+    }
+}
+
+/// Every object position of a file, to the millimetre.
+fn positions_mm(arrangement: &Arrangement) -> Vec<[i32; 2]> {
+    arrangement
+        .objects
+        .iter()
+        .map(|o| [0, 1].map(|i| (o.position[i] * 1000.0).round() as i32))
+        .collect()
+}
+
+#[test]
+fn validation_cases_match_their_originals_and_are_not_challenging_cases() {
+    let files = validation_files();
+    assert_eq!(files.len(), 5, "{files:?}");
+    let challenging: Vec<(PathBuf, Vec<[i32; 2]>)> = challenging_files()
+        .into_iter()
+        .map(|path| {
+            let positions = positions_mm(&load(&path, &OriginalOptions::default()));
+            (path, positions)
+        })
+        .collect();
+    let originals = test_cases_dir().map(|cases| cases.join(GRASPING_INVISIBLE_DIR));
+    for path in &files {
+        let arrangement = load(path, &OriginalOptions::default());
+        let goal = arrangement.goal.expect("a validation case names its goal");
+        assert!(
+            arrangement.objects.iter().any(|o| o.id == goal),
+            "{}: goal {goal} on the table",
+            path.display()
+        );
+        // Two of the coordination cases hold five objects of a challenging case each; one
+        // object in the same place is a coincidence of the designers' grid.
+        let positions = positions_mm(&arrangement);
+        for (case, theirs) in &challenging {
+            let shared = positions.iter().filter(|p| theirs.contains(p)).count();
+            assert!(
+                shared <= 1,
+                "{}: {shared} objects where {} has them",
+                path.display(),
+                case.display()
+            );
+        }
+        let Some(dir) = &originals else {
+            continue;
+        };
+        let name = arrangement.name.clone().expect("a name");
+        let original_path = dir.join(format!("{name}.txt"));
+        let original = load(&original_path, &OriginalOptions::default());
+        assert_eq!(arrangement.objects, original.objects, "{}", path.display());
+        // The goal, read here: the one line not named `block`.
+        let text = std::fs::read_to_string(&original_path).unwrap();
+        let goal_lines: Vec<usize> = text
+            .lines()
+            .enumerate()
+            .filter(|(_, line)| line.split_whitespace().next() != Some("block"))
+            .map(|(index, _)| index + 1)
+            .collect();
+        assert_eq!(goal_lines, [usize::from(goal)], "{}", path.display());
     }
 }
 
