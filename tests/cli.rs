@@ -218,7 +218,7 @@ fn scene_convert_refuses_a_goal_off_the_table() {
 }
 
 #[test]
-fn scene_convert_keeps_a_named_goal_and_refuses_a_second_one() {
+fn scene_convert_keeps_a_named_goal_and_refuses_a_goal_slot_besides_it() {
     let dir = tempfile::tempdir().unwrap();
     let original = dir.path().join("named.txt");
     std::fs::write(
