@@ -10,6 +10,12 @@
 //! receiver in the buffer it read it into. `iceoryx2_header_only_gbps_1` and
 //! `iceoryx2_copied_gbps_1` bound it: a subscriber that reads only the message number, and one
 //! that copies each message out first.
+//!
+//! Where the scheduler puts one publisher and its subscriber moves that figure: on one CPU they
+//! take turns, on two every line the subscriber reads comes from the other CPU's cache. So one
+//! publisher is measured again with both processes pinned to one CPU and to two, beside the
+//! same work done by two threads through plain memory (`handoff_gbps_*`): what those CPUs give
+//! without a transport.
 
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -49,6 +55,9 @@ pub struct TransportBenchArgs {
     /// Inside the bench: the run id (shared memory) or the socket path.
     #[arg(long, hide = true, default_value = "")]
     to: String,
+    /// Inside the bench: the CPU a publishing process runs on.
+    #[arg(long, hide = true)]
+    cpu: Option<usize>,
 }
 
 /// How a publishing process sends.
@@ -90,6 +99,12 @@ struct TransportFigures {
     iceoryx2_header_only_gbps_1: f64,
     /// memcpy from sources that are in no cache.
     memcpy_uncached_gbps: f64,
+    /// One publisher, both processes pinned to one CPU, and to two (null on one CPU).
+    iceoryx2_gbps_1_same_cpu: f64,
+    iceoryx2_gbps_1_two_cpus: Option<f64>,
+    /// The same bytes handed between two threads through plain memory, on one CPU and two.
+    handoff_gbps_same_cpu: f64,
+    handoff_gbps_two_cpus: Option<f64>,
     iceoryx2_over_unix_socket_1: f64,
     iceoryx2_over_unix_socket_2: f64,
     iceoryx2_over_unix_socket_4: f64,
@@ -123,7 +138,7 @@ pub fn bench_transport(args: &TransportBenchArgs) -> Result<()> {
         let mut socket_runs = Vec::new();
         for rep in 0..reps {
             let run = format!("{tag}-{publishers}-{rep}");
-            let time = shm_bandwidth(args, &run, publishers, messages, Use::Read)?;
+            let time = shm_bandwidth(args, &run, publishers, messages, Use::Read, Cpus::Any)?;
             shm_runs.push(bytes / time.as_secs_f64() / 1e9);
             let time = socket_bandwidth(args, &socket, publishers, messages)?;
             socket_runs.push(bytes / time.as_secs_f64() / 1e9);
@@ -131,17 +146,35 @@ pub fn bench_transport(args: &TransportBenchArgs) -> Result<()> {
         iceoryx2[k] = median(shm_runs);
         unix_socket[k] = median(socket_runs);
     }
-    let one_publisher = |how: Use, name: &str| -> Result<f64> {
+    let one_publisher = |how: Use, cpus: Cpus, name: &str| -> Result<f64> {
         let mut runs = Vec::new();
         for rep in 0..reps {
             let run = format!("{tag}-{name}-{rep}");
-            let time = shm_bandwidth(args, &run, 1, args.messages, how)?;
+            let time = shm_bandwidth(args, &run, 1, args.messages, how, cpus)?;
             runs.push((args.messages * args.size) as f64 / time.as_secs_f64() / 1e9);
         }
         Ok(median(runs))
     };
-    let copied = one_publisher(Use::Copy, "copied")?;
-    let header_only = one_publisher(Use::Header, "header")?;
+    let copied = one_publisher(Use::Copy, Cpus::Any, "copied")?;
+    let header_only = one_publisher(Use::Header, Cpus::Any, "header")?;
+    let cpus: Vec<usize> = core_affinity::get_core_ids()
+        .context("reading the CPUs this bench may use")?
+        .iter()
+        .map(|cpu| cpu.id)
+        .collect();
+    let first = *cpus.first().context("this bench may use no CPU")?;
+    let second = cpus.get(1).copied();
+    let pinned = |publisher| Cpus::Pinned {
+        subscriber: first,
+        publisher,
+    };
+    let same_cpu = one_publisher(Use::Read, pinned(first), "same-cpu")?;
+    let two_cpus = second
+        .map(|second| one_publisher(Use::Read, pinned(second), "two-cpus"))
+        .transpose()?;
+    let handoff_same_cpu = handoff_gbps(args.size, args.messages, reps, first, first);
+    let handoff_two_cpus =
+        second.map(|second| handoff_gbps(args.size, args.messages, reps, first, second));
     let memcpy = memcpy_gbps(args.size, args.messages, reps, 1);
     // Sources spread over 256 MB: far more than any cache holds.
     let memcpy_uncached = memcpy_gbps(args.size, args.messages, reps, (256 << 20) / args.size);
@@ -160,6 +193,10 @@ pub fn bench_transport(args: &TransportBenchArgs) -> Result<()> {
         iceoryx2_copied_gbps_1: copied,
         iceoryx2_header_only_gbps_1: header_only,
         memcpy_uncached_gbps: memcpy_uncached,
+        iceoryx2_gbps_1_same_cpu: same_cpu,
+        iceoryx2_gbps_1_two_cpus: two_cpus,
+        handoff_gbps_same_cpu: handoff_same_cpu,
+        handoff_gbps_two_cpus: handoff_two_cpus,
         iceoryx2_over_unix_socket_1: iceoryx2[0] / unix_socket[0],
         iceoryx2_over_unix_socket_2: iceoryx2[1] / unix_socket[1],
         iceoryx2_over_unix_socket_4: iceoryx2[2] / unix_socket[2],
@@ -193,17 +230,29 @@ struct Publishers {
 }
 
 impl Publishers {
-    fn start(via: Via, to: &str, count: usize, messages: usize, size: usize) -> Result<Self> {
+    fn start(
+        via: Via,
+        to: &str,
+        count: usize,
+        messages: usize,
+        size: usize,
+        cpu: Option<usize>,
+    ) -> Result<Self> {
         let exe = std::env::current_exe().context("finding this program")?;
         let mut publishers = Self {
             children: Vec::new(),
         };
         for index in 0..count {
-            let mut child = Command::new(&exe)
+            let mut command = Command::new(&exe);
+            command
                 .args(["bench", "transport", "--publisher", via.arg(), "--to", to])
                 .args(["--index", &index.to_string()])
                 .args(["--messages", &messages.to_string()])
-                .args(["--size", &size.to_string()])
+                .args(["--size", &size.to_string()]);
+            if let Some(cpu) = cpu {
+                command.args(["--cpu", &cpu.to_string()]);
+            }
+            let mut child = command
                 .stdin(Stdio::piped())
                 .stdout(Stdio::piped())
                 .spawn()
@@ -266,6 +315,38 @@ enum Use {
     Header,
 }
 
+/// Which CPUs a measurement's subscriber and publishers run on.
+#[derive(Clone, Copy)]
+enum Cpus {
+    /// Wherever the scheduler puts them.
+    Any,
+    Pinned {
+        subscriber: usize,
+        publisher: usize,
+    },
+}
+
+/// Runs `work` on a thread that runs on `cpu` alone.
+fn on_cpu<T: Send>(cpu: usize, work: impl FnOnce() -> Result<T> + Send) -> Result<T> {
+    std::thread::scope(|scope| {
+        scope
+            .spawn(|| {
+                pin_to(cpu)?;
+                work()
+            })
+            .join()
+            .expect("a pinned bench thread panicked")
+    })
+}
+
+fn pin_to(cpu: usize) -> Result<()> {
+    ensure!(
+        core_affinity::set_for_current(core_affinity::CoreId { id: cpu }),
+        "cannot run on CPU {cpu}"
+    );
+    Ok(())
+}
+
 /// Time for `publishers` processes to send `messages` each to one iceoryx2 subscriber, which
 /// checks each message's sender and number and uses it as `how` says.
 fn shm_bandwidth(
@@ -274,11 +355,40 @@ fn shm_bandwidth(
     publishers: usize,
     messages: usize,
     how: Use,
+    cpus: Cpus,
+) -> Result<Duration> {
+    if let Cpus::Pinned {
+        subscriber,
+        publisher,
+    } = cpus
+    {
+        return on_cpu(subscriber, || {
+            shm_receive(args, run, publishers, messages, how, Some(publisher))
+        });
+    }
+    shm_receive(args, run, publishers, messages, how, None)
+}
+
+/// [`shm_bandwidth`] on the calling thread, the publishers on `publisher_cpu` if given.
+fn shm_receive(
+    args: &TransportBenchArgs,
+    run: &str,
+    publishers: usize,
+    messages: usize,
+    how: Use,
+    publisher_cpu: Option<usize>,
 ) -> Result<Duration> {
     let time = {
         let transport = ShmTransport::new(run, "bench-subscriber")?;
         let mut subscriber = transport.subscriber(Topic::Steps)?;
-        let mut children = Publishers::start(Via::Iceoryx2, run, publishers, messages, args.size)?;
+        let mut children = Publishers::start(
+            Via::Iceoryx2,
+            run,
+            publishers,
+            messages,
+            args.size,
+            publisher_cpu,
+        )?;
         children.wait_ready()?;
         // Connects to the publishers.
         subscriber.receive(&mut |_| {})?;
@@ -341,7 +451,8 @@ fn socket_bandwidth(
     let _ = std::fs::remove_file(socket);
     let listener = UnixListener::bind(socket).context("binding the Unix socket")?;
     let to = socket.to_str().context("the socket path is not UTF-8")?;
-    let mut children = Publishers::start(Via::UnixSocket, to, publishers, messages, args.size)?;
+    let mut children =
+        Publishers::start(Via::UnixSocket, to, publishers, messages, args.size, None)?;
     listener.set_nonblocking(true)?;
     let mut streams: Vec<Frames> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(30);
@@ -469,6 +580,50 @@ fn memcpy_gbps(size: usize, messages: usize, reps: usize, sources: usize) -> f64
     median(runs)
 }
 
+/// Rate of handing `messages` messages of `size` bytes from a thread on CPU `writer` to one on
+/// CPU `reader` through plain memory, the work of the one-publisher measurement without a
+/// transport: the writer copies the message into the oldest free of four buffers (as a
+/// publisher copies into shared memory; four as the steps topic buffers), the reader reads
+/// every byte of it (the same checksum) and hands the buffer back.
+fn handoff_gbps(size: usize, messages: usize, reps: usize, reader: usize, writer: usize) -> f64 {
+    use std::sync::mpsc::sync_channel;
+    const BUFFERS: usize = 4;
+    let message = message_of(0, size);
+    let expected = checksum(&message);
+    let runs = (0..reps)
+        .map(|_| {
+            let (full_tx, full_rx) = sync_channel::<Vec<u8>>(BUFFERS);
+            let (empty_tx, empty_rx) = sync_channel::<Vec<u8>>(BUFFERS);
+            for _ in 0..BUFFERS {
+                empty_tx.send(vec![0; size]).expect("the channel is open");
+            }
+            let message = &message;
+            let time = on_cpu(reader, move || {
+                std::thread::scope(|scope| {
+                    scope.spawn(move || -> Result<()> {
+                        pin_to(writer)?;
+                        for mut buffer in empty_rx.iter().take(messages) {
+                            buffer.copy_from_slice(message);
+                            full_tx.send(buffer)?;
+                        }
+                        Ok(())
+                    });
+                    let start = Instant::now();
+                    for buffer in full_rx.iter().take(messages) {
+                        ensure!(checksum(&buffer) == expected, "a buffer arrived changed");
+                        // The writer stops taking buffers after the last message.
+                        let _ = empty_tx.send(buffer);
+                    }
+                    Ok(start.elapsed())
+                })
+            })
+            .expect("the hand-over threads run");
+            (messages * size) as f64 / time.as_secs_f64() / 1e9
+        })
+        .collect();
+    median(runs)
+}
+
 /// Latency of iceoryx2 for messages of `--size` bytes, one a millisecond (so none waits for
 /// another): from the publisher reading the clock just before it sends (the copy into shared
 /// memory included) to the subscriber, spinning on its receive, holding the message. The
@@ -479,7 +634,7 @@ fn shm_latency(args: &TransportBenchArgs, run: &str) -> Result<(f64, f64)> {
     {
         let transport = ShmTransport::new(run, "bench-subscriber")?;
         let mut subscriber = transport.subscriber(Topic::Steps)?;
-        let mut child = Publishers::start(Via::Iceoryx2Latency, run, 1, messages, args.size)?;
+        let mut child = Publishers::start(Via::Iceoryx2Latency, run, 1, messages, args.size, None)?;
         child.wait_ready()?;
         subscriber.receive(&mut |_| {})?;
         child.go()?;
@@ -527,6 +682,9 @@ fn publish(via: Via, args: &TransportBenchArgs) -> Result<()> {
         let word = (u64::from(args.index) << 48) | seq;
         message[..8].copy_from_slice(&word.to_le_bytes());
     };
+    if let Some(cpu) = args.cpu {
+        pin_to(cpu)?;
+    }
     let mut stdin = std::io::stdin().lock();
     let ready_then_go = |stdin: &mut std::io::StdinLock| -> Result<()> {
         println!("ready");

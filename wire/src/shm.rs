@@ -17,10 +17,13 @@
 //!   has connected to it. A publisher that exits before the subscriber first looked takes its
 //!   unread messages with it (a killed one, when it is cleaned up): a process makes sure its
 //!   last messages were read before it exits.
+//! - A subscriber of steps returns a step's memory to its publisher only after reading three
+//!   more, or 250 us later (see `kept`), so a publisher's shared memory holds those too.
 //! - History (the newest weights, the newest order) reaches a subscriber that joins later
 //!   only when the publisher next sends or calls [`Publisher::refresh`].
 
-use std::time::Duration;
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
 
 use iceoryx2::node::NodeView;
 use iceoryx2::port::publisher::Publisher as IoxPublisher;
@@ -31,6 +34,7 @@ use iceoryx2::prelude::{
     AllocationStrategy, BackpressureStrategy, CallbackProgression, Config, Node, NodeBuilder,
     NodeName, NodeState, ServiceName, SignalHandlingMode, ipc,
 };
+use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 
 use crate::error::TransportError;
@@ -159,8 +163,8 @@ impl ShmTransport {
             .max_subscribers(max_subscribers(topic))
             .max_nodes(MAX_NODES)
             .subscriber_max_buffer_size(topic.buffer())
-            // A subscriber holds one message at a time (while its sink runs).
-            .subscriber_max_borrowed_samples(1)
+            // The message its sink is reading, and those it keeps back (see `kept`).
+            .subscriber_max_borrowed_samples(kept(topic) + 1)
             .history_size(topic.history())
             .enable_safe_overflow(!lossless)
             .open_or_create()
@@ -187,6 +191,28 @@ fn max_subscribers(topic: Topic) -> usize {
         Topic::Steps | Topic::Requests | Topic::Batches | Topic::Status => 4,
     }
 }
+
+/// Messages a subscriber keeps back after reading them, before it returns them to their
+/// publisher. A publisher writes its next message into the memory returned to it last; that
+/// memory is still in the subscriber's cache if returned at once, and on another CPU every
+/// line written must first be taken back from it. Keeping three 0.5 MB steps (more than a
+/// core's 1 MB L2 cache here) sends the publisher to memory the subscriber's cache has let go:
+/// one publisher to a subscriber on another CPU went from 2-11 GB/s to 24-31 (`bench
+/// transport`, `iceoryx2_gbps_1_two_cpus`; keeping one: 17, two: 23-27).
+///
+/// Only while messages come in quick succession: a message kept longer than [`KEPT_AT_MOST`]
+/// is returned, so one that comes alone goes to the memory the last one used, which the
+/// caches still hold (p50 latency of lone 0.5 MB steps, a millisecond apart: 19-24 us, as
+/// before; 53-68 when they too were kept).
+fn kept(topic: Topic) -> usize {
+    match topic {
+        Topic::Steps => 3,
+        _ => 0,
+    }
+}
+
+/// How long a subscriber keeps a message back at most (see `kept`).
+const KEPT_AT_MOST: Duration = Duration::from_micros(250);
 
 /// iceoryx2's defaults (shared memory in /dev/shm, its files in /tmp/iceoryx2), never a
 /// configuration file found on the machine: every process of a run must agree.
@@ -249,6 +275,7 @@ impl Transport for ShmTransport {
         Ok(Box::new(ShmSubscriber {
             topic,
             subscriber,
+            kept: VecDeque::with_capacity(kept(topic)),
             _service: service,
         }))
     }
@@ -301,10 +328,28 @@ impl Publisher for ShmPublisher {
     }
 }
 
+/// A message read in place, its memory the publisher's until dropped.
+type ShmSample = Sample<ipc::Service, [u8], ()>;
+
 struct ShmSubscriber {
     topic: Topic,
     subscriber: IoxSubscriber<ipc::Service, [u8], ()>,
+    /// The last messages read and when, oldest first (see `kept`).
+    kept: VecDeque<(Instant, ShmSample)>,
     _service: PortFactory<ipc::Service, [u8], ()>,
+}
+
+impl ShmSubscriber {
+    /// Returns to their publishers the messages kept longest, beyond `kept(topic)` or
+    /// [`KEPT_AT_MOST`].
+    fn return_kept(&mut self) {
+        let now = Instant::now();
+        while self.kept.front().is_some_and(|(read, _)| {
+            self.kept.len() > kept(self.topic) || now - *read > KEPT_AT_MOST
+        }) {
+            self.kept.pop_front();
+        }
+    }
 }
 
 impl Subscriber for ShmSubscriber {
@@ -316,9 +361,16 @@ impl Subscriber for ShmSubscriber {
         {
             Some(sample) => {
                 sink(sample.payload());
+                if kept(self.topic) > 0 {
+                    self.kept.push_back((Instant::now(), sample));
+                }
+                self.return_kept();
                 Ok(true)
             }
-            None => Ok(false),
+            None => {
+                self.return_kept();
+                Ok(false)
+            }
         }
     }
 }
