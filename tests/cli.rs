@@ -259,3 +259,44 @@ fn episode_writes_its_summary_and_observations() {
     assert!((1..=3).contains(&steps.len()), "{} steps", steps.len());
     assert_eq!(heightmap_sizes(out.path(), "step00"), vec![(224, 224); 3]);
 }
+
+#[test]
+fn bench_transport_reports_every_figure_of_a_short_run() {
+    let stdout = pushgrasp_ok(&[
+        "bench",
+        "transport",
+        "--json",
+        "--messages",
+        "16",
+        "--size",
+        "65536",
+        "--reps",
+        "1",
+        "--latency-messages",
+        "4",
+    ]);
+    let last = stdout.lines().last().expect("a line of figures");
+    let figures: serde_json::Value = serde_json::from_str(last).unwrap();
+    let rate = |key: &str| figures[key].as_f64();
+    for publishers in [1, 2, 4] {
+        for via in ["iceoryx2", "unix_socket"] {
+            let key = format!("{via}_gbps_{publishers}");
+            assert!(rate(&key).is_some_and(|v| v > 0.0), "{key}: {figures}");
+        }
+    }
+    for key in [
+        "memcpy_gbps",
+        "iceoryx2_p50_latency_us",
+        "iceoryx2_gbps_1_same_cpu",
+        "handoff_gbps_same_cpu",
+    ] {
+        assert!(rate(key).is_some_and(|v| v > 0.0), "{key}: {figures}");
+    }
+    // Measured where this machine has a second CPU, null where it has not.
+    for key in ["iceoryx2_gbps_1_two_cpus", "handoff_gbps_two_cpus"] {
+        assert!(
+            figures[key].is_null() || rate(key).is_some_and(|v| v > 0.0),
+            "{key}: {figures}"
+        );
+    }
+}
