@@ -23,6 +23,11 @@ pub struct EvalArgs {
     /// A checkpoint directory (a run's `checkpoint/`).
     #[arg(long)]
     checkpoint: PathBuf,
+    /// More checkpoints to act together with --checkpoint's nets: at every decision the Q
+    /// maps of all of them are averaged (an ensemble). Each is read with its own run's
+    /// config, which must give the same nets and heightmap size.
+    #[arg(long, num_args = 1.., value_name = "CHECKPOINT")]
+    ensemble: Vec<PathBuf>,
     /// The config the checkpoint was trained with (default: `config.toml` in the
     /// checkpoint's parent, the run directory); it gives the nets' shape, the simulator and
     /// the policy (Q*, pushes per grasp).
@@ -76,6 +81,8 @@ struct RunLine<'a> {
 #[derive(Serialize)]
 struct EvalReport {
     checkpoint: String,
+    /// The checkpoints whose nets acted together with `checkpoint`'s (`--ensemble`).
+    ensemble: Vec<String>,
     updates: u64,
     runs_per_case: usize,
     seed: u64,
@@ -93,7 +100,20 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     } else {
         actor::Mode::PushGrasp
     };
-    let (config, agent, updates) = load_agent(&args.checkpoint, args.config.as_deref(), mode)?;
+    let (config, mut agent, updates) = load_agent(&args.checkpoint, args.config.as_deref(), mode)?;
+    for checkpoint in &args.ensemble {
+        let (member_config, member, _) = load_agent(checkpoint, None, mode)?;
+        if config_hash(&member_config.net) != config_hash(&config.net)
+            || member_config.side() != config.side()
+        {
+            bail!(
+                "--ensemble {}: its nets or heightmap size differ from --checkpoint {}'s",
+                checkpoint.display(),
+                args.checkpoint.display()
+            );
+        }
+        agent.ensemble.push(member.nets);
+    }
     let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
         .into_iter()
         .map(|(path, name, arrangement)| {
@@ -139,6 +159,11 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         .collect();
     let report = EvalReport {
         checkpoint: args.checkpoint.display().to_string(),
+        ensemble: args
+            .ensemble
+            .iter()
+            .map(|c| c.display().to_string())
+            .collect(),
         updates,
         runs_per_case: args.runs,
         seed: args.seed,
@@ -158,8 +183,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 
 fn print_table(report: &EvalReport) {
     println!(
-        "{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule{}",
         report.checkpoint,
+        if report.ensemble.is_empty() {
+            String::new()
+        } else {
+            format!(", Q maps averaged with {} more nets", report.ensemble.len())
+        },
         report.updates,
         report.runs_per_case,
         report.seed,

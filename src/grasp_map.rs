@@ -227,11 +227,7 @@ fn score_net(
     picks: &[usize],
     jitters: usize,
 ) -> Result<NetScore> {
-    let q_maps = agent.nets.all_rotations(
-        Primitive::Grasp,
-        &NetInput::encode(maps, goal),
-        &agent.geometry,
-    )?;
+    let q_maps = agent.q_maps(Primitive::Grasp, &NetInput::encode(maps, goal))?;
     let q: Vec<f32> = candidates
         .iter()
         .map(|a| {

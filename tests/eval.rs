@@ -93,6 +93,27 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     // The average is the paper's "challenging" column: the arrangements, not random scenes.
     assert_eq!(first["average"]["completion"], cases[0]["completion"]);
 
+    // An ensemble of the checkpoint with itself averages equal Q maps: the same runs.
+    let doubled: Value = serde_json::from_str(&pushgrasp_ok(&[
+        "eval",
+        "--checkpoint",
+        checkpoint,
+        "--ensemble",
+        checkpoint,
+        "--arrangements",
+        "configs/arrangements/challenging-05.toml",
+        "--random",
+        "6",
+        "--runs",
+        "2",
+        "--seed",
+        "1",
+        "--json",
+    ]))
+    .unwrap();
+    assert_eq!(doubled["cases"], first["cases"]);
+    assert_eq!(doubled["ensemble"][0], checkpoint);
+
     // The table says the same in words; goal-agnostic runs clear the table.
     let table = pushgrasp_ok(&[
         "eval",
@@ -142,6 +163,16 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let err = pushgrasp_fails(&[
         "eval",
         "--checkpoint",
+        missing.to_str().unwrap(),
+        "--random",
+        "6",
+    ]);
+    assert!(err.contains("no-such-checkpoint"), "{err}");
+    let err = pushgrasp_fails(&[
+        "eval",
+        "--checkpoint",
+        checkpoint,
+        "--ensemble",
         missing.to_str().unwrap(),
         "--random",
         "6",

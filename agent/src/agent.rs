@@ -10,6 +10,9 @@ use sim::{Heightmaps, ObjectId, Primitive};
 #[derive(Clone)]
 pub struct Agent {
     pub nets: QNets,
+    /// More nets whose Q maps are averaged with `nets`' at every decision (an ensemble, for
+    /// evaluation); empty when an actor acts in training.
+    pub ensemble: Vec<QNets>,
     pub geometry: Geometry,
     pub policy: PolicyConfig,
     pub mode: Mode,
@@ -37,6 +40,7 @@ impl Agent {
         let device = qnet::Backend::selected().device();
         Self {
             nets: QNets::new(net, &device),
+            ensemble: Vec::new(),
             geometry: Geometry::new(side, net),
             policy,
             mode,
@@ -53,15 +57,9 @@ impl Agent {
         rng: &mut ChaCha8Rng,
     ) -> Result<Choice, AgentError> {
         let input = NetInput::encode(obs, goal);
-        let grasp = self
-            .nets
-            .all_rotations(Primitive::Grasp, &input, &self.geometry)?;
+        let grasp = self.q_maps(Primitive::Grasp, &input)?;
         let push = match self.mode {
-            Mode::PushGrasp => Some(self.nets.all_rotations(
-                Primitive::Push,
-                &input,
-                &self.geometry,
-            )?),
+            Mode::PushGrasp => Some(self.q_maps(Primitive::Push, &input)?),
             Mode::GraspOnly => None,
         };
         let policy_input = PolicyInput {
@@ -77,5 +75,21 @@ impl Agent {
             grasp,
             push,
         })
+    }
+
+    /// One primitive's Q maps for all rotations: `nets`' alone, or the mean over the ensemble.
+    pub fn q_maps(&self, primitive: Primitive, input: &NetInput) -> Result<QMaps, AgentError> {
+        let maps = self.nets.all_rotations(primitive, input, &self.geometry)?;
+        if self.ensemble.is_empty() {
+            return Ok(maps);
+        }
+        let mut sum = maps.values().to_vec();
+        for nets in &self.ensemble {
+            let more = nets.all_rotations(primitive, input, &self.geometry)?;
+            sum.iter_mut().zip(more.values()).for_each(|(s, q)| *s += q);
+        }
+        let members = (1 + self.ensemble.len()) as f32;
+        sum.iter_mut().for_each(|s| *s /= members);
+        Ok(QMaps::new(maps.rotations(), maps.side(), sum)?)
     }
 }
