@@ -30,8 +30,9 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let checkpoint = logs.path().join("eval/checkpoint");
     let checkpoint = checkpoint.to_str().unwrap();
     let runs_json = logs.path().join("runs.jsonl");
-    let eval = |seed: &str| -> Value {
-        serde_json::from_str(&pushgrasp_ok(&[
+    // The table as JSON for `seed`, with `more` arguments.
+    let eval = |seed: &str, more: &[&str]| -> Value {
+        let mut args = vec![
             "eval",
             "--checkpoint",
             checkpoint,
@@ -46,11 +47,16 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "--json",
             "--runs-json",
             runs_json.to_str().unwrap(),
-        ]))
-        .unwrap()
+        ];
+        args.extend(more);
+        serde_json::from_str(&pushgrasp_ok(&args)).unwrap()
     };
-    let first = eval("1");
-    assert_eq!(first, eval("1"), "same checkpoint, same seed, same figures");
+    let first = eval("1", &[]);
+    assert_eq!(
+        first,
+        eval("1", &[]),
+        "same checkpoint, same seed, same figures"
+    );
     let cases = first["cases"].as_array().unwrap();
     assert_eq!(cases[0]["case"], "challenging-05");
     assert_eq!(cases[1]["case"], "random-6");
@@ -94,23 +100,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     assert_eq!(first["average"]["completion"], cases[0]["completion"]);
 
     // An ensemble of the checkpoint with itself averages equal Q maps: the same runs.
-    let doubled: Value = serde_json::from_str(&pushgrasp_ok(&[
-        "eval",
-        "--checkpoint",
-        checkpoint,
-        "--ensemble",
-        checkpoint,
-        "--arrangements",
-        "configs/arrangements/challenging-05.toml",
-        "--random",
-        "6",
-        "--runs",
-        "2",
-        "--seed",
-        "1",
-        "--json",
-    ]))
-    .unwrap();
+    let doubled = eval("1", &["--ensemble", checkpoint]);
     assert_eq!(doubled["cases"], first["cases"]);
     assert_eq!(doubled["ensemble"][0], checkpoint);
 
