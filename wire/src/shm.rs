@@ -180,9 +180,9 @@ impl ShmTransport {
 }
 
 /// Subscribers a topic admits at once. iceoryx2 sizes each publisher's shared memory for the
-/// worst case, max subscribers x (buffer + 1 held) + history + 2 messages, each rounded up to
-/// a power of two (0.5 MB steps take 1 MB: about 135 MB per actor with 4 subscribers). Only what
-/// is written takes memory, but the topics with one reader keep this small.
+/// worst case, max subscribers x (buffer + 1 read + `kept`) + history + 2 messages, each
+/// rounded up to a power of two (0.5 MB steps take 1 MB: 4 x (4 + 1 + 3) + 2, about 34 MB per
+/// actor). Only what is written takes memory, but the topics with one reader keep this small.
 fn max_subscribers(topic: Topic) -> usize {
     match topic {
         // Every actor, or every role, reads these.
