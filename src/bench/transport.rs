@@ -172,9 +172,10 @@ pub fn bench_transport(args: &TransportBenchArgs) -> Result<()> {
     let two_cpus = second
         .map(|second| one_publisher(Use::Read, pinned(second), "two-cpus"))
         .transpose()?;
-    let handoff_same_cpu = handoff_gbps(args.size, args.messages, reps, first, first);
-    let handoff_two_cpus =
-        second.map(|second| handoff_gbps(args.size, args.messages, reps, first, second));
+    let handoff_same_cpu = handoff_gbps(args.size, args.messages, reps, first, first)?;
+    let handoff_two_cpus = second
+        .map(|second| handoff_gbps(args.size, args.messages, reps, first, second))
+        .transpose()?;
     let memcpy = memcpy_gbps(args.size, args.messages, reps, 1);
     // Sources spread over 256 MB: far more than any cache holds.
     let memcpy_uncached = memcpy_gbps(args.size, args.messages, reps, (256 << 20) / args.size);
@@ -582,46 +583,55 @@ fn memcpy_gbps(size: usize, messages: usize, reps: usize, sources: usize) -> f64
 
 /// Rate of handing `messages` messages of `size` bytes from a thread on CPU `writer` to one on
 /// CPU `reader` through plain memory, the work of the one-publisher measurement without a
-/// transport: the writer copies the message into the oldest free of four buffers (as a
-/// publisher copies into shared memory; four as the steps topic buffers), the reader reads
-/// every byte of it (the same checksum) and hands the buffer back.
-fn handoff_gbps(size: usize, messages: usize, reps: usize, reader: usize, writer: usize) -> f64 {
+/// transport: the writer copies the message into the oldest free of as many buffers as the
+/// steps topic holds (as a publisher copies into shared memory), the reader reads every byte
+/// of it (the same checksum) and hands the buffer back.
+fn handoff_gbps(
+    size: usize,
+    messages: usize,
+    reps: usize,
+    reader: usize,
+    writer: usize,
+) -> Result<f64> {
     use std::sync::mpsc::sync_channel;
-    const BUFFERS: usize = 4;
+    let buffers = Topic::Steps.buffer();
     let message = message_of(0, size);
     let expected = checksum(&message);
-    let runs = (0..reps)
-        .map(|_| {
-            let (full_tx, full_rx) = sync_channel::<Vec<u8>>(BUFFERS);
-            let (empty_tx, empty_rx) = sync_channel::<Vec<u8>>(BUFFERS);
-            for _ in 0..BUFFERS {
-                empty_tx.send(vec![0; size]).expect("the channel is open");
-            }
-            let message = &message;
-            let time = on_cpu(reader, move || {
-                std::thread::scope(|scope| {
-                    scope.spawn(move || -> Result<()> {
-                        pin_to(writer)?;
-                        for mut buffer in empty_rx.iter().take(messages) {
-                            buffer.copy_from_slice(message);
-                            full_tx.send(buffer)?;
-                        }
-                        Ok(())
-                    });
-                    let start = Instant::now();
-                    for buffer in full_rx.iter().take(messages) {
-                        ensure!(checksum(&buffer) == expected, "a buffer arrived changed");
-                        // The writer stops taking buffers after the last message.
-                        let _ = empty_tx.send(buffer);
+    let mut runs = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let (full_tx, full_rx) = sync_channel::<Vec<u8>>(buffers);
+        let (empty_tx, empty_rx) = sync_channel::<Vec<u8>>(buffers);
+        for _ in 0..buffers {
+            empty_tx.send(vec![0; size])?;
+        }
+        let message = &message;
+        let time = on_cpu(reader, move || {
+            std::thread::scope(|scope| {
+                let writing = scope.spawn(move || -> Result<()> {
+                    pin_to(writer)?;
+                    for mut buffer in empty_rx.iter().take(messages) {
+                        buffer.copy_from_slice(message);
+                        full_tx.send(buffer)?;
                     }
-                    Ok(start.elapsed())
-                })
+                    Ok(())
+                });
+                let start = Instant::now();
+                let mut read = 0;
+                for buffer in full_rx.iter().take(messages) {
+                    ensure!(checksum(&buffer) == expected, "a buffer arrived changed");
+                    read += 1;
+                    // The writer stops taking buffers after the last message.
+                    let _ = empty_tx.send(buffer);
+                }
+                let time = start.elapsed();
+                writing.join().expect("the writing thread panicked")?;
+                ensure!(read == messages, "{read} of {messages} buffers arrived");
+                Ok(time)
             })
-            .expect("the hand-over threads run");
-            (messages * size) as f64 / time.as_secs_f64() / 1e9
-        })
-        .collect();
-    median(runs)
+        })?;
+        runs.push((messages * size) as f64 / time.as_secs_f64() / 1e9);
+    }
+    Ok(median(runs))
 }
 
 /// Latency of iceoryx2 for messages of `--size` bytes, one a millisecond (so none waits for

@@ -343,6 +343,9 @@ impl ShmSubscriber {
     /// Returns to their publishers the messages kept longest, beyond `kept(topic)` or
     /// [`KEPT_AT_MOST`].
     fn return_kept(&mut self) {
+        if self.kept.is_empty() {
+            return;
+        }
         let now = Instant::now();
         while self.kept.front().is_some_and(|(read, _)| {
             self.kept.len() > kept(self.topic) || now - *read > KEPT_AT_MOST
