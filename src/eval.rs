@@ -33,6 +33,10 @@ pub struct EvalArgs {
     /// the policy (Q*, pushes per grasp).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Q*: grasp once the goal's grasp Q exceeds this (default: the config's). An
+    /// ensemble's averaged maps peak lower than one net's, so it may want a lower one.
+    #[arg(long, value_name = "Q", allow_negative_numbers = true)]
+    q_star: Option<f32>,
     /// Arrangement files (our TOML, with a goal) or directories of them.
     #[arg(long, num_args = 1..)]
     arrangements: Vec<PathBuf>,
@@ -88,6 +92,7 @@ struct EvalReport {
     seed: u64,
     mode: actor::Mode,
     rule: actor::Rule,
+    q_star: f32,
     goal_agnostic: bool,
     cases: Vec<CaseRow>,
     /// The mean over the designed arrangements (random scenes left out); absent without any.
@@ -113,6 +118,12 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             );
         }
         agent.ensemble.push(member.nets);
+    }
+    if let Some(q_star) = args.q_star {
+        if !q_star.is_finite() {
+            bail!("--q-star {q_star}: not a number");
+        }
+        agent.policy.q_star = q_star;
     }
     let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
         .into_iter()
@@ -168,7 +179,8 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         runs_per_case: args.runs,
         seed: args.seed,
         mode,
-        rule: config.policy.rule,
+        rule: agent.policy.rule,
+        q_star: agent.policy.q_star,
         goal_agnostic: args.goal_agnostic,
         cases: rows,
         average,
@@ -183,7 +195,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 
 fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -195,6 +207,7 @@ fn print_table(report: &EvalReport) {
         report.seed,
         report.mode,
         report.rule,
+        report.q_star,
         if report.goal_agnostic {
             ", goal-agnostic (clear the table)"
         } else {

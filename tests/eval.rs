@@ -104,6 +104,27 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     assert_eq!(doubled["cases"], first["cases"]);
     assert_eq!(doubled["ensemble"][0], checkpoint);
 
+    // --q-star replaces the config's threshold: below every Q each run opens with a grasp,
+    // above every Q with a push.
+    let first_actions = |q_star: &str| -> Vec<Value> {
+        let report = eval("1", &["--q-star", q_star]);
+        assert_eq!(
+            report["q_star"].as_f64().unwrap(),
+            q_star.parse::<f64>().unwrap()
+        );
+        let firsts: Vec<Value> = std::fs::read_to_string(&runs_json)
+            .unwrap()
+            .lines()
+            .map(|line| {
+                serde_json::from_str::<Value>(line).unwrap()["actions"][0]["primitive"].clone()
+            })
+            .collect();
+        assert!(!firsts.is_empty(), "no run in {}", runs_json.display());
+        firsts
+    };
+    assert!(first_actions("-1000").iter().all(|p| p == "grasp"));
+    assert!(first_actions("1000").iter().all(|p| p == "push"));
+
     // The table says the same in words; goal-agnostic runs clear the table.
     let table = pushgrasp_ok(&[
         "eval",

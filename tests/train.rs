@@ -70,7 +70,12 @@ fn assert_lossless(logs: &Path, run: &str) -> u64 {
     for stream in streams {
         assert_eq!(u(&stream["missing"]), 0, "a gap in {stream}");
     }
+    // An actor that sent nothing (a slow start, its one step still waiting for the next
+    // state when the run ended) opens no stream.
     for report in summary["actors_reports"].as_array().expect("reports") {
+        if u(&report["steps_sent"]) == 0 {
+            continue;
+        }
         let stream = streams
             .iter()
             .find(|s| s["actor"] == report["actor"] && s["incarnation"] == report["incarnation"])
@@ -605,7 +610,11 @@ fn runs_at_once_stay_apart_even_with_one_id_in_two_log_directories() {
             .iter()
             .map(|s| u(&s["actor"]))
             .collect();
-        assert_eq!(seen, (0..actors).collect(), "run {run} heard {streams}");
+        // Only its own actors: a run of one actor that heard actor 1 heard another run.
+        assert!(
+            seen.iter().all(|&actor| actor < actors),
+            "run {run} heard {streams}"
+        );
     }
 }
 
