@@ -628,24 +628,37 @@ fn runs_at_once_stay_apart_even_with_one_id_in_two_log_directories() {
 }
 
 #[test]
-fn a_bad_config_is_refused_naming_the_file_and_field() {
-    let logs = logs();
-    let bad = logs.path().join("bad.toml");
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG))
-        .unwrap()
-        .replace("stage = 1", "stage = 4");
-    std::fs::write(&bad, text).unwrap();
-    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-        .args(["train", "--config"])
-        .arg(&bad)
-        .arg("--logs")
-        .arg(logs.path())
-        .output()
-        .unwrap();
-    assert!(!output.status.success());
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        stderr.contains("bad.toml") && stderr.contains("stage"),
-        "{stderr}"
-    );
+fn a_bad_config_is_refused_naming_the_file_and_field_before_anything_starts() {
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG)).unwrap();
+    // The buffer's rate limit used to be checked only once its role had started.
+    for (from, to, field) in [
+        ("stage = 1", "stage = 4", "stage"),
+        ("gamma = 0.5", "gamma = 1.5", "learning.gamma"),
+        (
+            "samples_per_insert = 4.0",
+            "samples_per_insert = 0.0",
+            "buffer.samples_per_insert",
+        ),
+    ] {
+        let logs = logs();
+        let bad = logs.path().join("bad.toml");
+        assert!(text.contains(from), "{CONFIG} has no `{from}`");
+        std::fs::write(&bad, text.replace(from, to)).unwrap();
+        let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+            .args(["train", "--config"])
+            .arg(&bad)
+            .arg("--logs")
+            .arg(logs.path())
+            .output()
+            .unwrap();
+        assert!(!output.status.success());
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains(&format!("bad.toml: {field}: ")), "{stderr}");
+        let left: Vec<_> = std::fs::read_dir(logs.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .filter(|name| name != "bad.toml")
+            .collect();
+        assert!(left.is_empty(), "a refused run left {left:?}");
+    }
 }

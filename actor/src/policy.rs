@@ -3,9 +3,11 @@
 //! grasp), and epsilon-greedy exploration draws the chosen primitive's pixel and rotation.
 //! The goal-conditioned VPG baseline swaps the discriminator for VPG's rule ([`Rule`]).
 
+use std::ops::Bound;
+
 use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
-use sim::{Action, Heightmaps, ObjectId, Primitive, ROTATIONS};
+use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::error::ActorError;
 use crate::qmaps::QMaps;
@@ -61,6 +63,18 @@ impl Default for PolicyConfig {
 }
 
 impl PolicyConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check_range("q_star", self.q_star, ..)?;
+        ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
+        ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
+        ConfigError::check_range(
+            "epsilon_decay",
+            self.epsilon_decay,
+            (Bound::Excluded(0.0), Bound::Included(1.0)),
+        )
+    }
+
     /// The exploration rate after `iteration` actions: max(start * decay^iteration, end), as
     /// the original's max(0.5 * 0.9998^iteration, 0.1).
     pub fn epsilon(&self, iteration: u64) -> f32 {

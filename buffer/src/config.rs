@@ -2,7 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::ConfigError;
+use sim::{ConfigError, above};
+
+use crate::rate_limit::RateLimiter;
 
 /// Capacity, prioritisation and rate limit of the replay buffer.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -48,33 +50,15 @@ impl Default for BufferConfig {
 }
 
 impl BufferConfig {
-    /// Checks every field; the rate limiter's own rules are checked where it is built.
+    /// Checks every field, the rate limiter's rules included.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let bad = |field: &'static str, why: String| Err(ConfigError { field, why });
         if self.capacity == 0 || u32::try_from(self.capacity).is_err() {
-            return bad(
-                "capacity",
-                format!("{} is not in 1..=2^32-1", self.capacity),
-            );
+            let why = format!("{} is not in 1..=2^32-1", self.capacity);
+            return Err(ConfigError::new("capacity", why));
         }
-        if !(self.alpha.is_finite() && self.alpha >= 0.0) {
-            return bad(
-                "alpha",
-                format!("{} is not a finite number >= 0", self.alpha),
-            );
-        }
-        if !(0.0..=1.0).contains(&self.beta_start) {
-            return bad(
-                "beta_start",
-                format!("{} is not in [0, 1]", self.beta_start),
-            );
-        }
-        if !(self.priority_epsilon.is_finite() && self.priority_epsilon > 0.0) {
-            return bad(
-                "priority_epsilon",
-                format!("{} is not a finite number > 0", self.priority_epsilon),
-            );
-        }
-        Ok(())
+        ConfigError::check_range("alpha", self.alpha, 0.0..)?;
+        ConfigError::check_range("beta_start", self.beta_start, 0.0..=1.0)?;
+        ConfigError::check_range("priority_epsilon", self.priority_epsilon, above(0.0))?;
+        RateLimiter::from_config(self).map(drop)
     }
 }

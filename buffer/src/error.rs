@@ -4,14 +4,6 @@ use std::path::PathBuf;
 
 use sim::{ObjectId, Primitive};
 
-/// A setting out of its range.
-#[derive(Debug, thiserror::Error, PartialEq)]
-#[error("buffer config: {field}: {why}")]
-pub struct ConfigError {
-    pub field: &'static str,
-    pub why: String,
-}
-
 /// A request the replay cannot serve.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ReplayError {

@@ -19,7 +19,7 @@ pub mod sum_tree;
 pub mod transition;
 
 pub use config::BufferConfig;
-pub use error::{AssembleError, ConfigError, ReplayError, SnapshotError, SnapshotErrorKind};
+pub use error::{AssembleError, ReplayError, SnapshotError, SnapshotErrorKind};
 pub use rate_limit::RateLimiter;
 pub use relabel::{EpisodeAssembler, Pending, Ready};
 pub use replay::{Batch, BatchItem, Key, PrioritizedReplay};

@@ -17,8 +17,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use sim::{ConfigError, above};
+
 use crate::config::BufferConfig;
-use crate::error::ConfigError;
 
 /// Counts of inserts, samples and deletes, and the window the samples-per-insert ratio must
 /// stay in.
@@ -40,25 +41,19 @@ impl RateLimiter {
         min_size_to_sample: u64,
         error_buffer: f64,
     ) -> Result<Self, ConfigError> {
-        let bad = |field: &'static str, why: String| Err(ConfigError { field, why });
-        if !(samples_per_insert.is_finite() && samples_per_insert > 0.0) {
-            return bad(
-                "samples_per_insert",
-                format!("{samples_per_insert} is not a finite number > 0"),
-            );
-        }
+        ConfigError::check_range("samples_per_insert", samples_per_insert, above(0.0))?;
         if min_size_to_sample == 0 {
-            return bad("min_size_to_sample", "must be at least 1".into());
+            return Err(ConfigError::new("min_size_to_sample", "must be at least 1"));
         }
         if !(error_buffer.is_finite() && error_buffer >= samples_per_insert.max(1.0)) {
-            return bad(
+            return Err(ConfigError::new(
                 "error_buffer",
                 format!(
                     "{error_buffer} is below max(1, samples_per_insert) = {}, which could \
                      block both inserts and samples",
                     samples_per_insert.max(1.0)
                 ),
-            );
+            ));
         }
         let offset = samples_per_insert * min_size_to_sample as f64;
         Ok(Self {

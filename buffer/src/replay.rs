@@ -4,10 +4,10 @@
 
 use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
-use sim::Primitive;
+use sim::{ConfigError, Primitive};
 
 use crate::config::BufferConfig;
-use crate::error::{ConfigError, ReplayError};
+use crate::error::ReplayError;
 use crate::sum_tree::SumTree;
 use crate::transition::Transition;
 

@@ -4,10 +4,10 @@
 use actor::PushReward;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
-use sim::{ObjectId, Primitive};
+use sim::{ConfigError, ObjectId, Primitive};
 
 use crate::config::BufferConfig;
-use crate::error::{AssembleError, ConfigError, ReplayError};
+use crate::error::{AssembleError, ReplayError};
 use crate::rate_limit::RateLimiter;
 use crate::relabel::{EpisodeAssembler, Ready};
 use crate::replay::{Batch, Key, PrioritizedReplay};
@@ -174,10 +174,9 @@ impl ReplayBuffer {
 
     /// Checks that a restored buffer is consistent with its own config.
     pub(crate) fn check(&self) -> Result<(), String> {
-        self.config.validate().map_err(|e| e.to_string())?;
-        if RateLimiter::from_config(&self.config).is_err() {
-            return Err("the rate limiter settings are invalid".into());
-        }
+        self.config
+            .validate()
+            .map_err(|e| e.in_table("buffer").to_string())?;
         self.replay.check(&self.config)
     }
 }

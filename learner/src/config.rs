@@ -1,6 +1,9 @@
 //! The learning rule's hyper-parameters; the defaults are the paper's.
 
+use std::ops::Bound;
+
 use serde::{Deserialize, Serialize};
+use sim::{ConfigError, above};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -51,4 +54,31 @@ impl Default for LearningConfig {
 pub struct LrDecay {
     pub to: f64,
     pub over_updates: u64,
+}
+
+impl LearningConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check_range("learning_rate", self.learning_rate, above(0.0))?;
+        if let Some(decay) = &self.lr_decay {
+            ConfigError::check_range("lr_decay.to", decay.to, above(0.0))?;
+            if decay.over_updates == 0 {
+                return Err(ConfigError::new(
+                    "lr_decay.over_updates",
+                    "must be at least 1",
+                ));
+            }
+        }
+        ConfigError::check_range("weight_decay", self.weight_decay, 0.0..)?;
+        ConfigError::check_range("beta_1", self.beta_1, 0.0..1.0)?;
+        ConfigError::check_range("beta_2", self.beta_2, 0.0..1.0)?;
+        // Values are bounded by the rewards over 1 - gamma.
+        ConfigError::check_range("gamma", self.gamma, 0.0..1.0)?;
+        ConfigError::check_range("huber_delta", self.huber_delta, above(0.0))?;
+        ConfigError::check_range(
+            "polyak_rate",
+            self.polyak_rate,
+            (Bound::Excluded(0.0), Bound::Included(1.0)),
+        )
+    }
 }

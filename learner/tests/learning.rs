@@ -22,17 +22,19 @@ fn trainer(trained: TrainedNet) -> Trainer {
 }
 
 fn trainer_with(learning: LearningConfig, trained: TrainedNet) -> Trainer {
-    let config = QNetConfig::default();
-    let device = Device::flex();
-    device.seed(5);
-    Trainer::new(
-        QNets::new(&config, &device),
-        &config,
-        112,
-        &learning,
+    trainer_from(
+        QNets::new(&QNetConfig::default(), &Device::flex()),
+        learning,
         trained,
-        &device,
     )
+}
+
+/// A trainer of given nets. Two trainers that must start alike share one `QNets`: the
+/// backend's random generator is the whole process's, so tests running beside each other
+/// draw from it in between any two inits.
+fn trainer_from(nets: QNets, learning: LearningConfig, trained: TrainedNet) -> Trainer {
+    let config = QNetConfig::default();
+    Trainer::new(nets, &config, 112, &learning, trained, &Device::flex())
 }
 
 /// Samples from a real scene: grasps at each visible object's first pixel.
@@ -163,13 +165,19 @@ fn parameters(nets: &QNets) -> Vec<f32> {
     collect.0
 }
 
-fn averaging(polyak_rate: f32, publish_average: bool) -> Trainer {
-    let learning = LearningConfig {
+fn averaging_config(polyak_rate: f32, publish_average: bool) -> LearningConfig {
+    LearningConfig {
         polyak_rate,
         publish_average,
         ..LearningConfig::default()
-    };
-    trainer_with(learning, TrainedNet::Grasp)
+    }
+}
+
+fn averaging(polyak_rate: f32, publish_average: bool) -> Trainer {
+    trainer_with(
+        averaging_config(polyak_rate, publish_average),
+        TrainedNet::Grasp,
+    )
 }
 
 fn assert_close(got: &[f32], want: &[f32]) {
@@ -185,7 +193,9 @@ fn assert_close(got: &[f32], want: &[f32]) {
 #[test]
 fn the_polyak_average_is_a_plain_mean_until_one_over_the_rate_updates_then_moves_by_the_rate() {
     // The same start and batches: the averaging trainer's trained nets are the plain one's.
-    let (mut plain, mut averaged) = (trainer(TrainedNet::Grasp), averaging(0.5, true));
+    let start = QNets::new(&QNetConfig::default(), &Device::flex());
+    let mut plain = trainer_from(start.clone(), LearningConfig::default(), TrainedNet::Grasp);
+    let mut averaged = trainer_from(start, averaging_config(0.5, true), TrainedNet::Grasp);
     let batch = samples(Primitive::Grasp, 1.5);
     let mut trained = Vec::new();
     for _ in 0..3 {

@@ -1,6 +1,7 @@
 //! The networks' shape, every knob visible.
 
 use serde::{Deserialize, Serialize};
+use sim::ConfigError;
 
 #[derive(Clone, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -41,6 +42,32 @@ impl Default for QNetConfig {
 }
 
 impl QNetConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.trunk_widths.is_empty() || self.trunk_widths.contains(&0) {
+            let why = format!(
+                "{:?}: needs at least one width, each at least 1",
+                self.trunk_widths
+            );
+            return Err(ConfigError::new("trunk_widths", why));
+        }
+        if self.context_dilations.contains(&0) {
+            let why = format!(
+                "{:?}: each dilation must be at least 1",
+                self.context_dilations
+            );
+            return Err(ConfigError::new("context_dilations", why));
+        }
+        if self.fuse_context && self.context_dilations.is_empty() {
+            let why = "true needs context_dilations to fuse";
+            return Err(ConfigError::new("fuse_context", why));
+        }
+        if self.head_width == 0 {
+            return Err(ConfigError::new("head_width", "must be at least 1"));
+        }
+        Ok(())
+    }
+
     /// How much the trunks shrink the padded input.
     pub fn downsample(&self) -> usize {
         1 << self.trunk_widths.len()

@@ -1,9 +1,12 @@
 //! The tabletop's settings, every one visible and overridable from a TOML config.
 
+use std::ops::Bound;
+
 use serde::{Deserialize, Serialize};
 
-use crate::error::SimError;
-use crate::workspace::PixelGrid;
+use crate::error::{ConfigError, SimError, above};
+use crate::primitives::HELD_MIN_RISE;
+use crate::workspace::{self, PixelGrid};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -49,5 +52,25 @@ impl SimConfig {
 
     pub fn grid(&self) -> Result<PixelGrid, SimError> {
         PixelGrid::new(self.pixel_size)
+    }
+
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.grid()
+            .map_err(|e| ConfigError::new("pixel_size", e.to_string()))?;
+        ConfigError::check_range("physics_hz", self.physics_hz, above(0.0))?;
+        ConfigError::check_range("settle_max_s", self.settle_max_s, 0.0..)?;
+        ConfigError::check_range("push_length", self.push_length, above(0.0))?;
+        ConfigError::check_range("drop_height", self.drop_height, above(0.0))?;
+        ConfigError::check_range(
+            "drop_square",
+            self.drop_square,
+            (Bound::Excluded(0.0), Bound::Included(workspace::SIDE)),
+        )?;
+        // A grasp that lifts less than a held object must rise can never succeed.
+        ConfigError::check_range("grasp_lift", self.grasp_lift, HELD_MIN_RISE..).map_err(|e| {
+            let why = format!("{} (the rise a held object is judged by)", e.why);
+            ConfigError::new(e.field, why)
+        })
     }
 }

@@ -23,7 +23,7 @@ pub use arrangement::{Arrangement, OriginalOptions, PlacedObject};
 pub use camera::{Camera, Heightmaps};
 pub use catalogue::{SLOT_COLOURS, ShapeKind};
 pub use config::SimConfig;
-pub use error::{ArrangementError, SimError};
+pub use error::{ArrangementError, ConfigError, SimError, above};
 pub use primitives::{
     Action, ActionOutcome, Primitive, ROTATIONS, nearest_rotation, rotation_angle,
 };

@@ -40,7 +40,7 @@ const CLOSE_STOPPED_SPEED: f32 = 0.002;
 /// Time held still after the lift before the grasp is judged (s).
 const HOLD_S: f32 = 0.1;
 /// An object is held if it touches both fingers and rose at least this much.
-const HELD_MIN_RISE: f32 = 0.05;
+pub(crate) const HELD_MIN_RISE: f32 = 0.05;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

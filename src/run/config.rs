@@ -227,10 +227,13 @@ impl RunConfig {
         if self.learner.checkpoint_every == 0 {
             bail!("learner.checkpoint_every: must be at least 1");
         }
-        self.buffer
+        self.sim.validate().map_err(|e| e.in_table("sim"))?;
+        self.policy.validate().map_err(|e| e.in_table("policy"))?;
+        self.net.validate().map_err(|e| e.in_table("net"))?;
+        self.learning
             .validate()
-            .map_err(|e| anyhow::anyhow!("buffer.{e}"))?;
-        self.sim.grid().map_err(|e| anyhow::anyhow!("sim: {e}"))?;
+            .map_err(|e| e.in_table("learning"))?;
+        self.buffer.validate().map_err(|e| e.in_table("buffer"))?;
         if let Some(apex) = &self.apex_epsilon
             && !((0.0..=1.0).contains(&apex.epsilon) && apex.alpha >= 0.0)
         {
@@ -338,6 +341,56 @@ mod tests {
             err.contains("run.toml") && err.contains("grasp_trials"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
+        let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
+        let text = std::fs::read_to_string(stage1).unwrap();
+        // `field` is `table.key`; the error must name it (a nested table's key after it).
+        let with = |field: &str, value: &str| {
+            let (table, key) = field.split_once('.').unwrap();
+            let mut config: toml::Table = toml::from_str(&text).unwrap();
+            let value: toml::Table = toml::from_str(&format!("v = {value}")).unwrap();
+            config
+                .entry(table)
+                .or_insert_with(|| toml::Table::new().into())
+                .as_table_mut()
+                .unwrap()
+                .insert(key.into(), value["v"].clone());
+            RunConfig::parse(&toml::to_string(&config).unwrap(), "run.toml")
+        };
+        for (field, value) in [
+            ("sim.physics_hz", "0.0"),
+            ("sim.grasp_lift", "0.03"),
+            ("sim.drop_square", "1.0"),
+            ("policy.q_star", "nan"),
+            ("policy.epsilon_start", "3.0"),
+            ("policy.epsilon_decay", "1.5"),
+            ("net.trunk_widths", "[]"),
+            ("net.context_dilations", "[1, 0]"),
+            ("net.head_width", "0"),
+            ("learning.learning_rate", "-1.0"),
+            ("learning.lr_decay", "{ to = 0.0, over_updates = 10 }"),
+            ("learning.beta_1", "1.5"),
+            ("learning.gamma", "1.0"),
+            ("learning.huber_delta", "0.0"),
+            ("learning.polyak_rate", "0.0"),
+            ("buffer.capacity", "0"),
+            ("buffer.samples_per_insert", "0.0"),
+        ] {
+            let err = with(field, value).unwrap_err().to_string();
+            assert!(err.starts_with(&format!("run.toml: {field}")), "{err}");
+        }
+        // The edge of each range is accepted.
+        for (field, value) in [
+            ("sim.grasp_lift", "0.05"),
+            ("policy.epsilon_decay", "1.0"),
+            ("learning.gamma", "0.0"),
+            ("learning.polyak_rate", "1.0"),
+        ] {
+            with(field, value).unwrap();
+        }
     }
 
     #[test]
