@@ -2,7 +2,8 @@
 //! each tried in the simulator from the arranged scene (no push before it). A case where none
 //! succeeds needs a push; where some always do, a grasp net that tells them apart picks the
 //! goal at once. The share that succeeds is what a policy grasping the goal at a random
-//! pixel and angle gets. With a checkpoint, its grasp net is scored against those outcomes:
+//! pixel and angle gets; the same among the grasps that stay a margin inside the goal's
+//! mask is what `[policy] grasp_margin` leaves the policy. With a checkpoint, its grasp net is scored against those outcomes:
 //! how well its Q ranks the grasps that always succeed above those that never do, and how
 //! its best-scored grasp fares.
 
@@ -24,6 +25,10 @@ use sim::{
 
 use crate::eval::{load_agent, named_arrangements};
 use crate::scene::RowArgs;
+
+/// Margins (metres) of `[policy] grasp_margin` at which the success of the grasps the
+/// policy may still make is shown.
+const MARGINS: [f32; 3] = [0.004, 0.008, 0.012];
 
 /// Random scenes' seeds start here (plus `--seed`), apart from the jitter seeds of the
 /// case list, which count up from `--seed`.
@@ -83,9 +88,18 @@ struct CaseGrasps {
     never: f64,
     /// Share of all tries that picked the goal.
     success: f64,
+    /// The same among the grasps a grasp margin keeps, for each of [`MARGINS`] (none when
+    /// no candidate is left).
+    inside: Vec<MarginSuccess>,
     /// With a checkpoint: how its grasp net scores these grasps.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     net: Option<NetScore>,
+}
+
+#[derive(Debug, Serialize)]
+struct MarginSuccess {
+    margin: f32,
+    success: Option<f64>,
 }
 
 /// A grasp net's Q on the goal's grasps against their outcomes.
@@ -175,6 +189,20 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
             )?),
             None => None,
         };
+        let inside = MARGINS
+            .iter()
+            .map(|&margin| {
+                let region = actor::grasp_region(&maps, goal, margin);
+                let kept: Vec<usize> = (0..candidates.len())
+                    .filter(|&i| region[candidates[i].row * maps.side() + candidates[i].col])
+                    .collect();
+                let success = (!kept.is_empty()).then(|| {
+                    kept.iter().map(|&i| picks[i]).sum::<usize>() as f64
+                        / (kept.len() * args.jitters) as f64
+                });
+                MarginSuccess { margin, success }
+            })
+            .collect();
         let share = |count: usize| count as f64 / candidates.len() as f64;
         cases.push(CaseGrasps {
             case: name,
@@ -183,6 +211,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
             always: share(picks.iter().filter(|&&p| p == args.jitters).count()),
             never: share(picks.iter().filter(|&&p| p == 0).count()),
             success: share(picks.iter().sum()) / args.jitters as f64,
+            inside,
             net,
         });
     }
@@ -291,22 +320,34 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
         args.jitters
     );
     let percent = |share: f64| format!("{:.1}%", 100.0 * share);
-    let row =
-        |case: &str, goal: &str, candidates: &str, shares: [f64; 3], net: Option<[String; 2]>| {
-            let [always, never, success] = shares.map(percent);
-            let net = net.map_or(String::new(), |[auc, best]| format!(" {auc:>8} {best:>9}"));
-            println!(
-                "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{net}"
-            );
-        };
+    let row = |case: &str,
+               goal: &str,
+               candidates: &str,
+               shares: [f64; 3],
+               inside: Vec<Option<f64>>,
+               net: Option<[String; 2]>| {
+        let [always, never, success] = shares.map(percent);
+        let inside: String = inside
+            .into_iter()
+            .map(|s| format!(" {:>8}", s.map_or("-".into(), percent)))
+            .collect();
+        let net = net.map_or(String::new(), |[auc, best]| format!(" {auc:>8} {best:>9}"));
+        println!(
+            "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{inside}{net}"
+        );
+    };
     let scored = cases.iter().any(|c| c.net.is_some());
     let header = if scored {
         format!(" {:>8} {:>9}", "net AUC", "net best")
     } else {
         String::new()
     };
+    let margins: String = MARGINS
+        .iter()
+        .map(|m| format!(" {:>8}", format!("in {}mm", (m * 1000.0).round())))
+        .collect();
     println!(
-        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}{header}",
+        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}{margins}{header}",
         "case", "goal", "candidates", "always", "never", "success"
     );
     let auc = |auc: Option<f64>| auc.map_or("-".into(), |a| format!("{a:.2}"));
@@ -316,6 +357,7 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
             &case.goal.to_string(),
             &case.candidates.to_string(),
             [case.always, case.never, case.success],
+            case.inside.iter().map(|m| m.success).collect(),
             case.net
                 .as_ref()
                 .map(|n| [auc(n.net_auc), percent(n.net_best)]),
@@ -341,6 +383,9 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
             share(|c| c.never),
             share(|c| c.success),
         ],
+        (0..MARGINS.len())
+            .map(|k| mean(&|c| c.inside[k].success))
+            .collect(),
         net,
     );
 }

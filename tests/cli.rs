@@ -127,6 +127,20 @@ fn scene_grasps_tells_grasps_that_fit_the_jaws_from_those_that_do_not() {
         always > 0.2 && never > 0.2,
         "some grasps fit, some do not: {stdout}"
     );
+    // The success of the grasps each grasp margin keeps: a share, for every margin shown.
+    let inside = case["inside"].as_array().unwrap();
+    let margins: Vec<f64> = inside
+        .iter()
+        .map(|m| m["margin"].as_f64().unwrap())
+        .collect();
+    assert_eq!(margins.len(), 3, "{stdout}");
+    assert!((margins[0] - 0.004).abs() < 1e-6, "{stdout}");
+    assert!(
+        inside.iter().all(|m| m["success"]
+            .as_f64()
+            .is_some_and(|s| (0.0..=1.0).contains(&s))),
+        "a bar 5 cm wide keeps grasps at every margin: {stdout}"
+    );
 
     let dir = tempfile::tempdir().unwrap();
     let no_goal = dir.path().join("no-goal.toml");

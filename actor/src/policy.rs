@@ -26,6 +26,10 @@ pub struct PolicyConfig {
     pub q_star: f32,
     /// Pushes allowed in an episode before the grasp is forced.
     pub max_pushes: usize,
+    /// Grasps stay this far (metres) inside the goal's mask, where the mask is wider than
+    /// twice this (else they go to its deepest pixels): a grasp at the goal's rim closes on
+    /// its edge or on a neighbour. 0: anywhere on the mask, as the paper.
+    pub grasp_margin: f32,
     /// Exploration rate at iteration 0.
     pub epsilon_start: f32,
     /// Exploration rate the decay stops at.
@@ -54,6 +58,7 @@ impl Default for PolicyConfig {
         Self {
             q_star: 1.8,
             max_pushes: 5,
+            grasp_margin: 0.0,
             epsilon_start: 0.5,
             epsilon_end: 0.1,
             epsilon_decay: 0.9998,
@@ -66,6 +71,7 @@ impl PolicyConfig {
     /// Checks every field.
     pub fn validate(&self) -> Result<(), ConfigError> {
         ConfigError::check_range("q_star", self.q_star, ..)?;
+        ConfigError::check_range("grasp_margin", self.grasp_margin, 0.0..)?;
         ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
         ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
         ConfigError::check_range(
@@ -164,19 +170,65 @@ impl Decision {
     }
 }
 
-/// Where a grasp may go and where the goal's grasp Q is read: the goal mask; if the goal is
-/// hidden, every object pixel (so the policy can uncover it by grasping what lies on top);
-/// if the table is bare, everywhere. Row-major, `side * side`.
-pub fn grasp_region(obs: &Heightmaps, goal: ObjectId) -> Vec<bool> {
+/// Where a grasp may go and where the goal's grasp Q is read: the goal mask less its rim
+/// `margin` metres wide (its deepest pixels where the rim would take all of it); if the goal
+/// is hidden, every object pixel (so the policy can uncover it by grasping what lies on
+/// top); if the table is bare, everywhere. Row-major, `side * side`.
+pub fn grasp_region(obs: &Heightmaps, goal: ObjectId, margin: f32) -> Vec<bool> {
     let mask = obs.goal_mask(goal);
     if mask.contains(&true) {
-        return mask;
+        let rim = (margin / obs.grid.pixel_size()).round() as u32;
+        return without_rim(&mask, obs.side(), rim);
     }
     let objects: Vec<bool> = obs.ids.iter().map(|&id| id != 0).collect();
     if objects.contains(&true) {
         return objects;
     }
     vec![true; obs.ids.len()]
+}
+
+/// The pixels of `mask` more than `rim` steps (in any of 8 directions) from a pixel outside
+/// it or from the map's border; where there are none, its deepest pixels.
+fn without_rim(mask: &[bool], side: usize, rim: u32) -> Vec<bool> {
+    if rim == 0 {
+        return mask.to_vec();
+    }
+    let depth = chessboard_depth(mask, side);
+    let keep = (rim + 1).min(depth.iter().copied().max().unwrap_or(0));
+    depth.iter().map(|&d| d > 0 && d >= keep).collect()
+}
+
+/// Each pixel's chessboard distance to the nearest pixel outside `mask` (the map's border
+/// counts as outside): 0 outside, 1 on the rim. Two raster passes.
+fn chessboard_depth(mask: &[bool], side: usize) -> Vec<u32> {
+    let mut depth: Vec<u32> = mask.iter().map(|&m| if m { u32::MAX } else { 0 }).collect();
+    let at = |depth: &[u32], r: isize, c: isize| -> u32 {
+        if r < 0 || c < 0 || r >= side as isize || c >= side as isize {
+            0
+        } else {
+            depth[r as usize * side + c as usize]
+        }
+    };
+    let mut pass = |order: &mut dyn Iterator<Item = usize>, neighbours: [(isize, isize); 4]| {
+        for i in order {
+            if depth[i] == 0 {
+                continue;
+            }
+            let (r, c) = ((i / side) as isize, (i % side) as isize);
+            let nearest = neighbours
+                .iter()
+                .map(|&(dr, dc)| at(&depth, r + dr, c + dc))
+                .min()
+                .expect("four neighbours");
+            depth[i] = depth[i].min(nearest.saturating_add(1));
+        }
+    };
+    pass(&mut (0..mask.len()), [(-1, -1), (-1, 0), (-1, 1), (0, -1)]);
+    pass(
+        &mut (0..mask.len()).rev(),
+        [(1, 1), (1, 0), (1, -1), (0, 1)],
+    );
+    depth
 }
 
 /// Where a push may start: pixels lower than [`PUSH_START_MAX_HEIGHT`], i.e. not on top of
@@ -219,7 +271,7 @@ pub fn choose(
         check_shape(Primitive::Push, push, obs)?;
     }
 
-    let region = grasp_region(obs, input.goal);
+    let region = grasp_region(obs, input.goal, config.grasp_margin);
     let best_grasp = input
         .grasp
         .best_where(&region)
@@ -287,10 +339,11 @@ pub fn trial_grasps(
     grasp: &QMaps,
     chosen: &Decision,
     n: usize,
+    config: &PolicyConfig,
     rng: &mut impl Rng,
 ) -> Result<Vec<Decision>, ActorError> {
     check_shape(Primitive::Grasp, grasp, obs)?;
-    let region = grasp_region(obs, goal);
+    let region = grasp_region(obs, goal, config.grasp_margin);
     Ok((0..n)
         .map(|_| {
             let (rotation, row, col) = uniform_draw(&region, obs.side(), rng);

@@ -245,6 +245,63 @@ fn grasp_only_mode_and_missing_push_maps_always_grasp() {
 }
 
 #[test]
+fn a_grasp_margin_keeps_grasps_off_the_goal_s_rim_and_the_argmax_follows() {
+    let obs = scene();
+    let mask = obs.goal_mask(GOAL);
+    let side = obs.side();
+    let on = |region: &[bool]| region.iter().filter(|&&a| a).count();
+    // Rows and columns the mask spans: a 5 cm cube is 12 or 13 pixels of 4 mm across.
+    let span = |region: &[bool], of: fn(usize, usize) -> usize| {
+        let picked: HashSet<usize> = (0..region.len())
+            .filter(|&i| region[i])
+            .map(|i| of(i, side))
+            .collect();
+        picked.len()
+    };
+    let (rows, cols) = (span(&mask, |i, s| i / s), span(&mask, |i, s| i % s));
+    assert_eq!(grasp_region(&obs, GOAL, 0.0), mask);
+    // One pixel off every side, two pixels: the mask less its rim, all inside the mask.
+    for (margin, lost) in [(0.004, 2), (0.009, 4)] {
+        let region = grasp_region(&obs, GOAL, margin);
+        assert!(region.iter().zip(&mask).all(|(&r, &m)| !r || m));
+        assert_eq!(span(&region, |i, s| i / s), rows - lost, "margin {margin}");
+        assert_eq!(span(&region, |i, s| i % s), cols - lost, "margin {margin}");
+        assert_eq!(on(&region), (rows - lost) * (cols - lost));
+    }
+    // A rim wider than half the mask leaves its deepest pixels.
+    let deepest = grasp_region(&obs, GOAL, 1.0);
+    assert!((1..=4).contains(&on(&deepest)), "{}", on(&deepest));
+    assert!(deepest.iter().zip(&mask).all(|(&r, &m)| !r || m));
+
+    // The best grasp Q at the rim is passed over for the best inside the margin.
+    let (row, col) = (0..mask.len())
+        .filter(|&i| mask[i])
+        .map(|i| (i / side, i % side))
+        .min()
+        .unwrap();
+    let centre = pixel(&obs, 0.0, 0.0);
+    let grasp = maps(&obs, 0.0, &[(3, (row, col), 1.95), (5, centre, 1.9)]);
+    let config = PolicyConfig {
+        grasp_margin: 0.004,
+        ..PolicyConfig::default()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let d = choose(
+        &config,
+        Mode::GraspOnly,
+        &input(&obs, &grasp, None, 0),
+        0.0,
+        &mut rng,
+    )
+    .unwrap();
+    assert_eq!(
+        (d.action.rotation, d.action.row, d.action.col),
+        (5, centre.0, centre.1)
+    );
+    assert_eq!(d.goal_grasp_q, 1.9);
+}
+
+#[test]
 fn a_hidden_goal_is_scored_over_every_object_and_a_bare_table_over_everything() {
     let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(PIXEL_SIZE)).unwrap();
     cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
@@ -252,7 +309,7 @@ fn a_hidden_goal_is_scored_over_every_object_and_a_bare_table_over_everything() 
     cube(&mut tabletop, 2, 0.1, 0.0, 0.025);
     let obs = Camera::new(tabletop.grid()).render(&tabletop);
     assert!(!obs.goal_mask(GOAL).contains(&true));
-    let region = grasp_region(&obs, GOAL);
+    let region = grasp_region(&obs, GOAL, 0.0);
     assert_eq!(
         region,
         obs.ids.iter().map(|&id| id != 0).collect::<Vec<_>>()
@@ -276,7 +333,7 @@ fn a_hidden_goal_is_scored_over_every_object_and_a_bare_table_over_everything() 
     );
 
     let bare = Heightmaps::new(PixelGrid::new(PIXEL_SIZE).unwrap());
-    assert!(grasp_region(&bare, GOAL).iter().all(|&a| a));
+    assert!(grasp_region(&bare, GOAL, 0.0).iter().all(|&a| a));
     let table = (5, 7);
     let grasp = maps(&bare, 0.0, &[(1, table, 0.5)]);
     let d = greedy(&input(&bare, &grasp, None, 0));
@@ -358,7 +415,16 @@ fn trial_grasps_spread_over_the_goal_each_with_its_own_q() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let grasp = random_maps(&obs, 0.0..2.0, &mut rng);
     let chosen = greedy(&input(&obs, &grasp, None, 0));
-    let trials = trial_grasps(&obs, GOAL, &grasp, &chosen, 400, &mut rng).unwrap();
+    let trials = trial_grasps(
+        &obs,
+        GOAL,
+        &grasp,
+        &chosen,
+        400,
+        &PolicyConfig::default(),
+        &mut rng,
+    )
+    .unwrap();
     assert_eq!(trials.len(), 400);
     let goal = obs.goal_mask(GOAL);
     let side = obs.side();

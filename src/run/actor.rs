@@ -355,8 +355,15 @@ pub fn run(
                 shipper.ship(p, Some(&decision))?;
             }
             if decision.action.primitive == Primitive::Grasp && config.grasp_trials > 0 {
-                let trials =
-                    trial_grasps(&obs, goal, &grasp, &decision, config.grasp_trials, &mut rng)?;
+                let trials = trial_grasps(
+                    &obs,
+                    goal,
+                    &grasp,
+                    &decision,
+                    config.grasp_trials,
+                    &config.policy,
+                    &mut rng,
+                )?;
                 for trial in trials {
                     let outcome = tabletop.replica().act(&trial.action, &obs)?;
                     let transition = Transition {

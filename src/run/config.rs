@@ -365,6 +365,7 @@ mod tests {
             ("sim.grasp_lift", "0.03"),
             ("sim.drop_square", "1.0"),
             ("policy.q_star", "nan"),
+            ("policy.grasp_margin", "-0.004"),
             ("policy.epsilon_start", "3.0"),
             ("policy.epsilon_decay", "1.5"),
             ("net.trunk_widths", "[]"),
