@@ -3,9 +3,9 @@
 //! succeeds needs a push; where some always do, a grasp net that tells them apart picks the
 //! goal at once. The share that succeeds is what a policy grasping the goal at a random
 //! pixel and angle gets; the same among the grasps that stay a margin inside the goal's
-//! mask is what `[policy] grasp_margin` leaves the policy. With a checkpoint, its grasp net is scored against those outcomes:
-//! how well its Q ranks the grasps that always succeed above those that never do, and how
-//! its best-scored grasp fares.
+//! mask is what `[policy] grasp_margin` leaves the policy. With a checkpoint, its grasp net
+//! is scored against those outcomes: how well its Q ranks the grasps that always succeed
+//! above those that never do, and how its best-scored grasp fares.
 
 use std::path::PathBuf;
 

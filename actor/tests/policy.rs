@@ -67,15 +67,13 @@ fn input<'a>(
 
 /// A greedy choice (epsilon 0) in push-grasp mode with the default config.
 fn greedy(input: &PolicyInput) -> Decision {
+    greedy_with(&PolicyConfig::default(), Mode::PushGrasp, input)
+}
+
+/// A greedy choice (epsilon 0) with `config` in `mode`.
+fn greedy_with(config: &PolicyConfig, mode: Mode, input: &PolicyInput) -> Decision {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    choose(
-        &PolicyConfig::default(),
-        Mode::PushGrasp,
-        input,
-        0.0,
-        &mut rng,
-    )
-    .unwrap()
+    choose(config, mode, input, 0.0, &mut rng).unwrap()
 }
 
 fn at(decision: &Decision) -> (u8, (usize, usize)) {
@@ -208,15 +206,11 @@ fn a_spent_push_budget_forces_a_grasp() {
         max_pushes: 2,
         ..PolicyConfig::default()
     };
-    let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let d = choose(
+    let d = greedy_with(
         &config,
         Mode::PushGrasp,
         &input(&f.obs, &grasp, Some(&f.push), 2),
-        0.0,
-        &mut rng,
-    )
-    .unwrap();
+    );
     assert_eq!(d.reason, Reason::PushBudgetSpent);
 }
 
@@ -285,19 +279,8 @@ fn a_grasp_margin_keeps_grasps_off_the_goal_s_rim_and_the_argmax_follows() {
         grasp_margin: 0.004,
         ..PolicyConfig::default()
     };
-    let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let d = choose(
-        &config,
-        Mode::GraspOnly,
-        &input(&obs, &grasp, None, 0),
-        0.0,
-        &mut rng,
-    )
-    .unwrap();
-    assert_eq!(
-        (d.action.rotation, d.action.row, d.action.col),
-        (5, centre.0, centre.1)
-    );
+    let d = greedy_with(&config, Mode::GraspOnly, &input(&obs, &grasp, None, 0));
+    assert_eq!(at(&d), (5, centre));
     assert_eq!(d.goal_grasp_q, 1.9);
 }
 
