@@ -17,6 +17,7 @@ use sim::Arrangement;
 
 use crate::run::config::RunConfig;
 use crate::run::files_with_extension;
+use crate::run::settings::{merge, parse_setting, resolve};
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -33,10 +34,12 @@ pub struct EvalArgs {
     /// the policy (Q*, pushes per grasp).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Q*: grasp once the goal's grasp Q exceeds this (default: the config's). An
-    /// ensemble's averaged maps peak lower than one net's, so it may want a lower one.
-    #[arg(long, value_name = "Q", allow_negative_numbers = true)]
-    q_star: Option<f32>,
+    /// A setting that replaces the config's, for this evaluation: a dotted key and a TOML
+    /// value, e.g. `--set policy.q_star=1.5` (an ensemble's averaged maps peak lower than
+    /// one net's, so it may want a lower Q*) or `--set policy.grasp_margin=0.02`.
+    /// Repeatable; it changes --checkpoint's config, whose policy acts.
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
+    set: Vec<toml::Table>,
     /// Arrangement files (our TOML, with a goal) or directories of them.
     #[arg(long, num_args = 1..)]
     arrangements: Vec<PathBuf>,
@@ -93,6 +96,8 @@ struct EvalReport {
     mode: actor::Mode,
     rule: actor::Rule,
     q_star: f32,
+    /// `[policy] grasp_margin`, metres.
+    grasp_margin: f32,
     goal_agnostic: bool,
     cases: Vec<CaseRow>,
     /// The mean over the designed arrangements (random scenes left out); absent without any.
@@ -105,9 +110,14 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     } else {
         actor::Mode::PushGrasp
     };
-    let (config, mut agent, updates) = load_agent(&args.checkpoint, args.config.as_deref(), mode)?;
+    let mut set = toml::Table::new();
+    for setting in &args.set {
+        merge(&mut set, setting);
+    }
+    let (config, mut agent, updates) =
+        load_agent(&args.checkpoint, args.config.as_deref(), &set, mode)?;
     for checkpoint in &args.ensemble {
-        let (member_config, member, _) = load_agent(checkpoint, None, mode)?;
+        let (member_config, member, _) = load_agent(checkpoint, None, &toml::Table::new(), mode)?;
         if config_hash(&member_config.net) != config_hash(&config.net)
             || member_config.side() != config.side()
         {
@@ -118,12 +128,6 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             );
         }
         agent.ensemble.push(member.nets);
-    }
-    if let Some(q_star) = args.q_star {
-        if !q_star.is_finite() {
-            bail!("--q-star {q_star}: not a number");
-        }
-        agent.policy.q_star = q_star;
     }
     let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
         .into_iter()
@@ -181,6 +185,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         mode,
         rule: agent.policy.rule,
         q_star: agent.policy.q_star,
+        grasp_margin: agent.policy.grasp_margin,
         goal_agnostic: args.goal_agnostic,
         cases: rows,
         average,
@@ -195,7 +200,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 
 fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -208,6 +213,11 @@ fn print_table(report: &EvalReport) {
         report.mode,
         report.rule,
         report.q_star,
+        if report.grasp_margin > 0.0 {
+            format!(", grasp margin {} mm", 1000.0 * report.grasp_margin)
+        } else {
+            String::new()
+        },
         if report.goal_agnostic {
             ", goal-agnostic (clear the table)"
         } else {
@@ -256,10 +266,12 @@ fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {
 }
 
 /// A checkpoint's nets as an agent in `mode`, with the run config they were trained with
-/// (`config`, else `config.toml` in the checkpoint's run directory) and their update count.
+/// (`config`, else `config.toml` in the checkpoint's run directory) with `set` merged into
+/// it, and their update count.
 pub fn load_agent(
     checkpoint: &Path,
     config: Option<&Path>,
+    set: &toml::Table,
     mode: actor::Mode,
 ) -> Result<(RunConfig, Agent, u64)> {
     let config_path = match config {
@@ -269,7 +281,12 @@ pub fn load_agent(
             .map(|run| run.join("config.toml"))
             .context("--checkpoint has no parent directory; name the config with --config")?,
     };
-    let config = RunConfig::load(&config_path)?;
+    let config = if set.is_empty() {
+        RunConfig::load(&config_path)?
+    } else {
+        let origin = format!("{} with --set", config_path.display());
+        RunConfig::parse(&resolve(&config_path, set)?, &origin)?
+    };
     let SavedNets {
         manifest, weights, ..
     } = Checkpoint::at(checkpoint)

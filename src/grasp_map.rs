@@ -116,8 +116,12 @@ struct NetScore {
 pub fn run(args: &GraspsArgs) -> Result<()> {
     let (sim, agent) = match &args.checkpoint {
         Some(checkpoint) => {
-            let (config, agent, _) =
-                load_agent(checkpoint, args.config.as_deref(), actor::Mode::GraspOnly)?;
+            let (config, agent, _) = load_agent(
+                checkpoint,
+                args.config.as_deref(),
+                &toml::Table::new(),
+                actor::Mode::GraspOnly,
+            )?;
             (config.sim, Some(agent))
         }
         None => (SimConfig::with_pixel_size(args.pixel_size), None),

@@ -16,6 +16,7 @@ use serde::Deserialize;
 
 use crate::run::config::RunConfig;
 use crate::run::launch::Summary;
+use crate::run::settings::{merge, parse_setting, resolve};
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -36,19 +37,6 @@ pub struct PipelineArgs {
     /// e.g. `--set seed=4` or `--set push_reward='"none"'`. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
     set: Vec<toml::Table>,
-}
-
-/// `key=value` as the one-entry TOML table it sets (`a.b=1` is `{ a = { b = 1 } }`).
-fn parse_setting(arg: &str) -> Result<toml::Table, String> {
-    let (key, value) = arg
-        .split_once('=')
-        .ok_or_else(|| format!("`{arg}` is not KEY=VALUE"))?;
-    toml::from_str(&format!("{} = {}", key.trim(), value.trim())).map_err(|e| {
-        format!(
-            "`{arg}`: {} (a string value needs TOML quotes: KEY='\"text\"')",
-            e.message()
-        )
-    })
 }
 
 /// A pipeline file.
@@ -225,28 +213,6 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
     Ok(())
 }
 
-/// The text of `config` with `set` merged into it.
-fn resolve(config: &Path, set: &toml::Table) -> Result<String> {
-    let text =
-        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
-    let mut table: toml::Table =
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
-    merge(&mut table, set);
-    Ok(toml::to_string(&table)?)
-}
-
-/// Sets every key of `set` in `table`; where both hold a table, merges into it.
-fn merge(table: &mut toml::Table, set: &toml::Table) {
-    for (key, value) in set {
-        match (table.get_mut(key), value) {
-            (Some(toml::Value::Table(inner)), toml::Value::Table(patch)) => merge(inner, patch),
-            _ => {
-                table.insert(key.clone(), value.clone());
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -308,40 +274,6 @@ mod tests {
         assert!(
             err.contains("stage2.toml") && err.contains("grasp_trials"),
             "{err}"
-        );
-    }
-
-    #[test]
-    fn set_replaces_values_and_merges_into_tables() {
-        let mut table: toml::Table =
-            toml::from_str("seed = 1\n[buffer]\ncapacity = 8\nalpha = 0.6\n").unwrap();
-        let set: toml::Table =
-            toml::from_str("push_reward = \"none\"\nbuffer.relabel = false\nbuffer.alpha = 0.0\n")
-                .unwrap();
-        merge(&mut table, &set);
-        let want: toml::Table = toml::from_str(
-            "seed = 1\npush_reward = \"none\"\n[buffer]\ncapacity = 8\nalpha = 0.0\nrelabel = false\n",
-        )
-        .unwrap();
-        assert_eq!(table, want);
-    }
-
-    #[test]
-    fn a_command_line_setting_is_a_dotted_key_and_a_toml_value() {
-        let want: toml::Table = toml::from_str("[learning]\nlearning_rate = 5e-4\n").unwrap();
-        assert_eq!(
-            parse_setting("learning.learning_rate = 5e-4").unwrap(),
-            want
-        );
-        assert_eq!(
-            parse_setting("push_reward=\"none\"").unwrap()["push_reward"].as_str(),
-            Some("none")
-        );
-        assert!(parse_setting("seed").unwrap_err().contains("KEY=VALUE"));
-        let error = parse_setting("push_reward=none").unwrap_err();
-        assert!(
-            error.contains("push_reward=none") && error.contains("quotes"),
-            "{error}"
         );
     }
 }

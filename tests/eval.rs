@@ -104,10 +104,10 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     assert_eq!(doubled["cases"], first["cases"]);
     assert_eq!(doubled["ensemble"][0], checkpoint);
 
-    // --q-star replaces the config's threshold: below every Q each run opens with a grasp,
-    // above every Q with a push.
+    // --set policy.q_star replaces the config's threshold: below every Q each run opens
+    // with a grasp, above every Q with a push.
     let first_actions = |q_star: &str| -> Vec<Value> {
-        let report = eval("1", &["--q-star", q_star]);
+        let report = eval("1", &["--set", &format!("policy.q_star={q_star}")]);
         assert_eq!(
             report["q_star"].as_f64().unwrap(),
             q_star.parse::<f64>().unwrap()
@@ -124,6 +124,23 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     };
     assert!(first_actions("-1000").iter().all(|p| p == "grasp"));
     assert!(first_actions("1000").iter().all(|p| p == "push"));
+    // Settings merge, and the report says the policy that acted.
+    let margined = eval(
+        "1",
+        &[
+            "--set",
+            "policy.grasp_margin=0.02",
+            "--set",
+            "policy.q_star=1000",
+        ],
+    );
+    assert_eq!(
+        (
+            margined["grasp_margin"].as_f64().unwrap(),
+            margined["q_star"].as_f64().unwrap()
+        ),
+        (0.02, 1000.0)
+    );
 
     // The table says the same in words; goal-agnostic runs clear the table.
     let table = pushgrasp_ok(&[
@@ -189,4 +206,18 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
         "6",
     ]);
     assert!(err.contains("no-such-checkpoint"), "{err}");
+    // A bad setting is refused naming the config, --set and the field.
+    let err = pushgrasp_fails(&[
+        "eval",
+        "--checkpoint",
+        checkpoint,
+        "--random",
+        "6",
+        "--set",
+        "policy.grasp_margin=-0.01",
+    ]);
+    assert!(
+        err.contains("config.toml with --set") && err.contains("policy.grasp_margin"),
+        "{err}"
+    );
 }

@@ -9,6 +9,7 @@ pub mod config;
 pub mod launch;
 pub mod learner;
 pub mod record;
+pub mod settings;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
