@@ -3,9 +3,11 @@
 //! succeeds needs a push; where some always do, a grasp net that tells them apart picks the
 //! goal at once. The share that succeeds is what a policy grasping the goal at a random
 //! pixel and angle gets; the same among the grasps that stay a margin inside the goal's
-//! mask is what `[policy] grasp_margin` leaves the policy. With a checkpoint, its grasp net
-//! is scored against those outcomes: how well its Q ranks the grasps that always succeed
-//! above those that never do, and how its best-scored grasp fares.
+//! mask is what `[policy] grasp_margin` leaves the policy. A scripted grasp (the mask's
+//! centroid, jaws across its narrow side) shows what a grasp made without learning gets.
+//! With a checkpoint, its grasp net is scored against those outcomes: how well its Q ranks
+//! the grasps that always succeed above those that never do, and how its best-scored grasp
+//! fares.
 
 use std::path::PathBuf;
 
@@ -24,6 +26,7 @@ use sim::{
 };
 
 use crate::eval::{load_agent, named_arrangements};
+use crate::mask_shape::MaskShape;
 use crate::scene::RowArgs;
 
 /// Margins (metres) of `[policy] grasp_margin` at which the success of the grasps the
@@ -91,6 +94,8 @@ struct CaseGrasps {
     /// The same among the grasps a grasp margin keeps, for each of [`MARGINS`] (none when
     /// no candidate is left).
     inside: Vec<MarginSuccess>,
+    /// Share of tries of the scripted grasp ([`MaskShape::grasp`]) that picked the goal.
+    scripted: f64,
     /// With a checkpoint: how its grasp net scores these grasps.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     net: Option<NetScore>,
@@ -173,15 +178,18 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
                 "{source}: the goal, object {goal}, is not seen from above once the scene settles"
             );
         }
-        let picks: Vec<usize> = candidates
-            .par_iter()
-            .map(|action| {
-                copies
-                    .iter()
-                    .map(|copy| picks_goal(&sim, copy, goal, action).map(usize::from))
-                    .sum::<Result<usize>>()
-            })
-            .collect::<Result<_>>()?;
+        let tries = |action: &Action| -> Result<usize> {
+            copies
+                .iter()
+                .map(|copy| picks_goal(&sim, copy, goal, action).map(usize::from))
+                .sum()
+        };
+        let picks: Vec<usize> = candidates.par_iter().map(tries).collect::<Result<_>>()?;
+        let scripted = MaskShape::of(&maps, goal)
+            .map(|shape| tries(&shape.grasp()))
+            .transpose()?
+            .unwrap_or(0) as f64
+            / args.jitters as f64;
         let net = match &agent {
             Some(agent) => Some(score_net(
                 agent,
@@ -216,6 +224,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
             never: share(picks.iter().filter(|&&p| p == 0).count()),
             success: share(picks.iter().sum()) / args.jitters as f64,
             inside,
+            scripted,
             net,
         });
     }
@@ -329,15 +338,17 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
                candidates: &str,
                shares: [f64; 3],
                inside: Vec<Option<f64>>,
+               scripted: f64,
                net: Option<[String; 2]>| {
         let [always, never, success] = shares.map(percent);
         let inside: String = inside
             .into_iter()
             .map(|s| format!(" {:>8}", s.map_or("-".into(), percent)))
             .collect();
+        let scripted = percent(scripted);
         let net = net.map_or(String::new(), |[auc, best]| format!(" {auc:>8} {best:>9}"));
         println!(
-            "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{inside}{net}"
+            "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{inside} {scripted:>9}{net}"
         );
     };
     let scored = cases.iter().any(|c| c.net.is_some());
@@ -351,8 +362,8 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
         .map(|m| format!(" {:>8}", format!("in {}mm", (m * 1000.0).round())))
         .collect();
     println!(
-        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}{margins}{header}",
-        "case", "goal", "candidates", "always", "never", "success"
+        "{:<20} {:>5} {:>11} {:>8} {:>8} {:>8}{margins} {:>9}{header}",
+        "case", "goal", "candidates", "always", "never", "success", "scripted"
     );
     let auc = |auc: Option<f64>| auc.map_or("-".into(), |a| format!("{a:.2}"));
     for case in cases {
@@ -362,6 +373,7 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
             &case.candidates.to_string(),
             [case.always, case.never, case.success],
             case.inside.iter().map(|m| m.success).collect(),
+            case.scripted,
             case.net
                 .as_ref()
                 .map(|n| [auc(n.net_auc), percent(n.net_best)]),
@@ -390,6 +402,7 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
         (0..MARGINS.len())
             .map(|k| mean(&|c| c.inside[k].success))
             .collect(),
+        share(|c| c.scripted),
         net,
     );
 }

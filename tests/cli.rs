@@ -141,6 +141,8 @@ fn scene_grasps_tells_grasps_that_fit_the_jaws_from_those_that_do_not() {
             .is_some_and(|s| (0.0..=1.0).contains(&s))),
         "a bar 5 cm wide keeps grasps at every margin: {stdout}"
     );
+    // The scripted grasp closes across a lone bar at its centre: it picks it.
+    assert_eq!(case["scripted"].as_f64(), Some(1.0), "{stdout}");
 
     let dir = tempfile::tempdir().unwrap();
     let no_goal = dir.path().join("no-goal.toml");
