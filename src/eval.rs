@@ -17,7 +17,7 @@ use sim::Arrangement;
 
 use crate::run::config::RunConfig;
 use crate::run::files_with_extension;
-use crate::run::settings::{merge, parse_setting, resolve};
+use crate::run::settings::{load_with, merge, parse_setting};
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -281,12 +281,7 @@ pub fn load_agent(
             .map(|run| run.join("config.toml"))
             .context("--checkpoint has no parent directory; name the config with --config")?,
     };
-    let config = if set.is_empty() {
-        RunConfig::load(&config_path)?
-    } else {
-        let origin = format!("{} with --set", config_path.display());
-        RunConfig::parse(&resolve(&config_path, set)?, &origin)?
-    };
+    let (config, _) = load_with(&config_path, set, "--set")?;
     let SavedNets {
         manifest, weights, ..
     } = Checkpoint::at(checkpoint)

@@ -16,7 +16,7 @@ use serde::Deserialize;
 
 use crate::run::config::RunConfig;
 use crate::run::launch::Summary;
-use crate::run::settings::{merge, parse_setting, resolve};
+use crate::run::settings::{load_with, merge, parse_setting};
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -90,24 +90,15 @@ impl PipelineFile {
                 let config_path = base.join(&entry.config);
                 let mut set = entry.set.clone();
                 merge(&mut set, &self.set);
-                if set.is_empty() {
-                    return Ok(Stage {
-                        config: RunConfig::load(&config_path)?,
-                        path: config_path,
-                        resolved: None,
-                        entry,
-                    });
-                }
-                let text = resolve(&config_path, &set)?;
-                let origin = format!(
-                    "{} with the stage's set, the [set] of {} and any --set",
-                    config_path.display(),
+                let by = format!(
+                    "the stage's set, the [set] of {} and any --set",
                     path.display()
                 );
+                let (config, resolved) = load_with(&config_path, &set, &by)?;
                 Ok(Stage {
-                    config: RunConfig::parse(&text, &origin)?,
+                    config,
                     path: config_path,
-                    resolved: Some(text),
+                    resolved,
                     entry,
                 })
             })

@@ -5,6 +5,8 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
+use crate::run::config::RunConfig;
+
 /// `key=value` as the one-entry TOML table it sets (`a.b=1` is `{ a = { b = 1 } }`); the
 /// value parser of every `--set`.
 pub fn parse_setting(arg: &str) -> Result<toml::Table, String> {
@@ -31,8 +33,24 @@ pub fn merge(table: &mut toml::Table, set: &toml::Table) {
     }
 }
 
+/// The run config in the file `config` with `set` merged into it, checked, and its text
+/// when `set` changed it. Errors name the file, and `by` (what gave the settings) when there
+/// are any; a file without settings is read as written, so errors point at its lines.
+pub fn load_with(
+    config: &Path,
+    set: &toml::Table,
+    by: &str,
+) -> Result<(RunConfig, Option<String>)> {
+    if set.is_empty() {
+        return Ok((RunConfig::load(config)?, None));
+    }
+    let text = resolve(config, set)?;
+    let origin = format!("{} with {by}", config.display());
+    Ok((RunConfig::parse(&text, &origin)?, Some(text)))
+}
+
 /// The text of the config file `config` with `set` merged into it.
-pub fn resolve(config: &Path, set: &toml::Table) -> Result<String> {
+fn resolve(config: &Path, set: &toml::Table) -> Result<String> {
     let text =
         std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
     let mut table: toml::Table =
