@@ -18,13 +18,16 @@ test:
 	test -x $(MCAP_VENV)/bin/python3 || { python3 -m venv $(MCAP_VENV) && $(MCAP_VENV)/bin/python3 -m pip install -q mcap mcap-protobuf-support; } || echo "the Python mcap reader is not installed: its cross-check is skipped"
 	$(CARGO) test --release --workspace
 
-# The buffer's figures run cpprb beside ours when it can be installed (into target/).
+# The peers run beside ours when they can be installed (into target/): onnxruntime and numpy
+# beside the nets (bench learner), cpprb beside the replay (bench buffer).
 BENCH_VENV := target/bench-venv
 bench:
+	test -x $(BENCH_VENV)/bin/python3 || python3 -m venv $(BENCH_VENV) || echo "no Python venv: the benchmarks run without their peers"
+	$(BENCH_VENV)/bin/python3 -c "import cpprb, onnxruntime, onnx, numpy" 2>/dev/null || $(BENCH_VENV)/bin/python3 -m pip install -q cpprb onnxruntime onnx numpy || echo "the peers are not installed: the benchmarks run without them"
 	$(CARGO) run --release -- bench sim
 	$(CARGO) run --release -- bench learner
+	$(CARGO) run --release -- bench learner --config configs/stage1.toml
 	$(CARGO) run --release -- bench transport
-	test -x $(BENCH_VENV)/bin/python3 || { python3 -m venv $(BENCH_VENV) && $(BENCH_VENV)/bin/python3 -m pip install -q cpprb; } || echo "cpprb not installed: bench buffer runs alone"
 	$(CARGO) run --release -- bench buffer
 	$(CARGO) run --release -- bench e2e
 	$(CARGO) run --release -- bench logging

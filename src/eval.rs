@@ -127,7 +127,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
                 args.checkpoint.display()
             );
         }
-        agent.ensemble.push(member.nets);
+        agent.join_ensemble(member.nets())?;
     }
     let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
         .into_iter()
@@ -297,9 +297,8 @@ pub fn load_agent(
         );
     }
     let mut agent = Agent::new(&config.net, config.side(), config.policy.clone(), mode);
-    agent.nets = agent
-        .nets
-        .load_bytes(&weights)
+    agent
+        .load_weights(&weights)
         .with_context(|| format!("loading {}", checkpoint.display()))?;
     Ok((config, agent, manifest.updates))
 }

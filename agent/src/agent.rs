@@ -2,17 +2,20 @@
 //! observation and a goal into a decision.
 
 use actor::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
-use qnet::{Geometry, NetInput, QNetConfig, QNetError, QNets};
+use qnet::{ActingNets, Geometry, NetInput, QNetConfig, QNetError, QNets};
 use rand_chacha::ChaCha8Rng;
 use sim::{Heightmaps, ObjectId, Primitive};
 
 /// The nets acting through the policy.
 #[derive(Clone)]
 pub struct Agent {
-    pub nets: QNets,
+    nets: QNets,
+    /// `nets` in the form that acts (on the CPU, their inference form), rebuilt whenever
+    /// their weights change.
+    acting: ActingNets,
     /// More nets whose Q maps are averaged with `nets`' at every decision (an ensemble, for
     /// evaluation); empty when an actor acts in training.
-    pub ensemble: Vec<QNets>,
+    ensemble: Vec<ActingNets>,
     pub geometry: Geometry,
     pub policy: PolicyConfig,
     pub mode: Mode,
@@ -38,13 +41,35 @@ impl Agent {
     /// Fresh nets of `net` for `side x side` heightmaps on the selected backend.
     pub fn new(net: &QNetConfig, side: usize, policy: PolicyConfig, mode: Mode) -> Self {
         let device = qnet::Backend::selected().device();
+        let nets = QNets::new(net, &device);
         Self {
-            nets: QNets::new(net, &device),
+            acting: ActingNets::new(&nets).expect("fresh nets have an inference form"),
+            nets,
             ensemble: Vec::new(),
             geometry: Geometry::new(side, net),
             policy,
             mode,
         }
+    }
+
+    /// The nets this agent acts with.
+    pub fn nets(&self) -> &QNets {
+        &self.nets
+    }
+
+    /// Acts with the weights in `bytes` (made by [`QNets::to_bytes`] for nets of this
+    /// agent's configuration) from now on.
+    pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), QNetError> {
+        let nets = self.nets.clone().load_bytes(bytes)?;
+        self.acting = ActingNets::new(&nets)?;
+        self.nets = nets;
+        Ok(())
+    }
+
+    /// Averages `nets`' Q maps into every decision from now on (an ensemble member).
+    pub fn join_ensemble(&mut self, nets: &QNets) -> Result<(), QNetError> {
+        self.ensemble.push(ActingNets::new(nets)?);
+        Ok(())
     }
 
     /// Q maps for all rotations, then the hierarchical choice under exploration `epsilon`.
@@ -79,7 +104,9 @@ impl Agent {
 
     /// One primitive's Q maps for all rotations: `nets`' alone, or the mean over the ensemble.
     pub fn q_maps(&self, primitive: Primitive, input: &NetInput) -> Result<QMaps, AgentError> {
-        let maps = self.nets.all_rotations(primitive, input, &self.geometry)?;
+        let maps = self
+            .acting
+            .all_rotations(primitive, input, &self.geometry)?;
         if self.ensemble.is_empty() {
             return Ok(maps);
         }

@@ -18,7 +18,7 @@ fn an_ensemble_acts_on_the_mean_of_its_nets_q_maps() {
     // Fresh nets: each drawn with its own weights.
     let (one, other) = (make(), make());
     let mut pair = one.clone();
-    pair.ensemble.push(other.nets.clone());
+    pair.join_ensemble(other.nets()).unwrap();
     let input = NetInput::encode(&obs, 1);
     for primitive in [Primitive::Grasp, Primitive::Push] {
         let a = one.q_maps(primitive, &input).unwrap();

@@ -30,10 +30,10 @@ fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
     };
     let make = || Agent::new(&net, side, PolicyConfig::default(), Mode::PushGrasp);
     // Untrained nets on the same weights in every worker: seed the weights once.
-    let weights = make().nets.to_bytes().unwrap();
+    let weights = make().nets().to_bytes().unwrap();
     let make_same = || {
         let mut agent = make();
-        agent.nets = agent.nets.load_bytes(&weights).unwrap();
+        agent.load_weights(&weights).unwrap();
         agent
     };
     let config = EvalConfig {

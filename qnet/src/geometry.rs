@@ -6,7 +6,8 @@
 //! so a net only ever learns to push (or close its jaws) along +x. The inputs need no
 //! gradient, so they are rotated here by a precomputed nearest-neighbour gather (as the
 //! original's nearest sampling); the outputs are rotated back with burn's bilinear
-//! `grid_sample`, which the learner differentiates through.
+//! `grid_sample`, which the learner differentiates through, or, in the CPU inference form,
+//! by the same bilinear taps precomputed here ([`Geometry::back_taps`]).
 
 use sim::{ROTATIONS, rotation_angle};
 
@@ -26,6 +27,18 @@ pub struct Geometry {
     /// Per rotation, for each pixel of the padded rotated input, its source pixel in the
     /// unpadded image (row-major), or `OUTSIDE`.
     sources: Vec<Vec<u32>>,
+    /// Per rotation, for each low-resolution pixel rotated back, its bilinear taps.
+    back: Vec<Vec<Taps>>,
+    /// For each row (and column) of the heightmap, the two low-resolution rows the
+    /// upsampling blends and the second one's weight.
+    upsample: Vec<(u32, u32, f32)>,
+}
+
+/// Four pixels of a map, row-major indices, and their bilinear weights.
+#[derive(Clone, Copy, Debug)]
+pub struct Taps {
+    pub index: [u32; 4],
+    pub weight: [f32; 4],
 }
 
 impl Geometry {
@@ -60,12 +73,69 @@ impl Geometry {
                 table
             })
             .collect();
-        Self {
+        let mut geometry = Self {
             side,
             padded,
             downsample,
             sources,
-        }
+            back: Vec::new(),
+            upsample: Vec::new(),
+        };
+        geometry.back = (0..ROTATIONS).map(|k| geometry.taps_of(k)).collect();
+        geometry.upsample = geometry.upsample_of();
+        geometry
+    }
+
+    /// `back_grid`'s samples of rotation `k` as bilinear taps, as `grid_sample` reads them
+    /// (pixel centres, corners not aligned, coordinates clamped to the border).
+    fn taps_of(&self, k: u8) -> Vec<Taps> {
+        let s = self.low_side();
+        let to_pixel = |g: f32| ((g + 1.0) * s as f32 / 2.0 - 0.5).clamp(0.0, (s - 1) as f32);
+        self.back_grid(&[k])
+            .chunks_exact(2)
+            .map(|g| {
+                let (x, y) = (to_pixel(g[0]), to_pixel(g[1]));
+                let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+                let (x1, y1) = ((x0 + 1).min(s - 1), (y0 + 1).min(s - 1));
+                let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+                let at = |row: usize, col: usize| (row * s + col) as u32;
+                Taps {
+                    index: [at(y0, x0), at(y0, x1), at(y1, x0), at(y1, x1)],
+                    weight: [
+                        (1.0 - fx) * (1.0 - fy),
+                        fx * (1.0 - fy),
+                        (1.0 - fx) * fy,
+                        fx * fy,
+                    ],
+                }
+            })
+            .collect()
+    }
+
+    /// Bilinear upsampling from the low side to the padded side (pixel centres, corners not
+    /// aligned), for the heightmap's rows inside the padding.
+    fn upsample_of(&self) -> Vec<(u32, u32, f32)> {
+        let (s, p) = (self.low_side(), self.padded);
+        (self.offset()..self.offset() + self.side)
+            .map(|i| {
+                let x = ((i as f32 + 0.5) * s as f32 / p as f32 - 0.5).max(0.0);
+                let low = (x.floor() as usize).min(s - 1);
+                let high = (low + 1).min(s - 1);
+                (low as u32, high as u32, (x - low as f32).max(0.0))
+            })
+            .collect()
+    }
+
+    /// Per low-resolution pixel of a map rotated back by rotation `k`'s angle, the pixels of
+    /// the net's output it blends (what [`Geometry::back_grid`] samples).
+    pub fn back_taps(&self, k: u8) -> &[Taps] {
+        &self.back[k as usize]
+    }
+
+    /// Per row (and column) of the heightmap, the two low-resolution rows (columns) of a
+    /// rotated-back map its upsampling blends and the second one's weight.
+    pub fn upsample_taps(&self) -> &[(u32, u32, f32)] {
+        &self.upsample
     }
 
     /// The heightmap side this geometry is for.

@@ -5,20 +5,28 @@
 //! goal-mask planes, concatenated, then the paper's head, giving one Q map per rotation. The
 //! input is rotated by -theta (padded so no corner is lost) and each output rotated back by
 //! +theta, so Q map k scores the action at angle k x 22.5 degrees. The same code runs on the
-//! CPU backend (burn-flex, the default) and, with the `wgpu` feature, on a GPU.
+//! CPU backend (burn-flex, the default) and, with the `wgpu` feature, on a GPU; on the CPU,
+//! actors act through the nets' inference form ([`Inference`]), the same function computed
+//! several times faster.
 
+pub mod acting;
 pub mod config;
 pub mod device;
 pub mod error;
 pub mod geometry;
+pub mod inference;
 pub mod input;
+pub mod layers;
 pub mod net;
 pub mod qnets;
 
+pub use acting::ActingNets;
 pub use config::QNetConfig;
 pub use device::Backend;
 pub use error::QNetError;
 pub use geometry::Geometry;
+pub use inference::Inference;
 pub use input::NetInput;
+pub use layers::NetLayers;
 pub use net::PrimitiveNet;
 pub use qnets::QNets;

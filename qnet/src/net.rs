@@ -15,8 +15,8 @@ use crate::config::QNetConfig;
 /// batch norm and ReLU; padded so only the stride changes the size.
 #[derive(Module, Debug)]
 pub struct ConvBlock {
-    conv: Conv2d,
-    norm: BatchNorm,
+    pub(crate) conv: Conv2d,
+    pub(crate) norm: BatchNorm,
 }
 
 impl ConvBlock {
@@ -109,7 +109,7 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// Blocks applied in turn.
 #[derive(Module, Debug)]
 pub struct Trunk {
-    blocks: Vec<ConvBlock>,
+    pub(crate) blocks: Vec<ConvBlock>,
 }
 
 impl Trunk {
@@ -146,15 +146,15 @@ impl Trunk {
 /// The Q-network of one primitive.
 #[derive(Module, Debug)]
 pub struct PrimitiveNet {
-    colour: Trunk,
-    depth: Trunk,
-    mask: Trunk,
+    pub(crate) colour: Trunk,
+    pub(crate) depth: Trunk,
+    pub(crate) mask: Trunk,
     /// Context blocks over the trunks' features together (none unless `fuse_context`).
-    fused: Trunk,
-    head_norm_in: BatchNorm,
-    head_hidden: Conv2d,
-    head_norm_hidden: BatchNorm,
-    head_out: Conv2d,
+    pub(crate) fused: Trunk,
+    pub(crate) head_norm_in: BatchNorm,
+    pub(crate) head_hidden: Conv2d,
+    pub(crate) head_norm_hidden: BatchNorm,
+    pub(crate) head_out: Conv2d,
 }
 
 impl PrimitiveNet {

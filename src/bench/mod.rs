@@ -15,6 +15,8 @@ use crate::mask_shape::MaskShape;
 
 mod e2e;
 mod logging;
+mod peer;
+mod python;
 mod replay;
 mod transport;
 
@@ -50,6 +52,13 @@ pub struct LearnerBenchArgs {
     /// Time the nets of this run config's `[net]` (default: the library's default shape).
     #[arg(long)]
     config: Option<std::path::PathBuf>,
+    /// The Python that runs onnxruntime and numpy beside ours [default:
+    /// target/bench-venv/bin/python3 when it exists, else python3].
+    #[arg(long)]
+    python: Option<std::path::PathBuf>,
+    /// Leave the onnxruntime and numpy peer out.
+    #[arg(long)]
+    no_peer: bool,
 }
 
 #[derive(Args)]
@@ -229,7 +238,7 @@ fn print_figures(figures: &serde_json::Value, json: bool) -> Result<()> {
 
 fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     use learner::{LearningConfig, Sample, TrainedNet, Trainer};
-    use qnet::{NetInput, QNetConfig, QNets};
+    use qnet::{ActingNets, NetInput, QNetConfig, QNets};
 
     let reps = args.reps.max(1);
     let backend = qnet::Backend::selected();
@@ -249,6 +258,8 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         serde_json::to_value(&net.context_dilations)?,
     );
     figures.insert("fuse_context".into(), net.fuse_context.into());
+    let python = args.python.clone().unwrap_or_else(python::default_python);
+    let (mut peer_figures, mut peer_missing) = (serde_json::Map::new(), None);
     for pixel_size in [0.004f32, 0.002] {
         let config = SimConfig::with_pixel_size(pixel_size);
         let (tabletop, _) = Tabletop::random(&config, 10, 0)?;
@@ -266,19 +277,69 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         );
         let nets = trainer.published_nets();
         let geometry = trainer.geometry().clone();
-        let infer = median(
-            (0..reps)
-                .map(|_| {
-                    ms(timed(|| {
-                        for primitive in [Primitive::Push, Primitive::Grasp] {
-                            nets.all_rotations(primitive, &input, &geometry)
-                                .expect("inference");
-                        }
-                    })
-                    .1)
-                })
-                .collect(),
-        );
+        let acting = ActingNets::new(&nets)?;
+        let both = |run: &dyn Fn(Primitive)| {
+            median(
+                (0..reps)
+                    .map(|_| ms(timed(|| [Primitive::Push, Primitive::Grasp].map(run)).1))
+                    .collect(),
+            )
+        };
+        // What the actors run, and burn's own forward of the same nets beside it.
+        let infer = both(&|primitive| {
+            acting
+                .all_rotations(primitive, &input, &geometry)
+                .expect("inference");
+        });
+        let burn_infer = both(&|primitive| {
+            nets.all_rotations(primitive, &input, &geometry)
+                .expect("inference");
+        });
+        let suffix = format!("_{side}");
+        let mut put = |name: &str, value: f64| {
+            figures.insert(format!("{name}{suffix}"), value.into());
+        };
+        put("infer_16rot_ms", infer);
+        put("burn_infer_16rot_ms", burn_infer);
+        if let ActingNets::Cpu(inference) = &acting {
+            // The convolutions alone, on inputs rotated beforehand: what the peer runs.
+            let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
+            for k in 0..ROTATIONS {
+                geometry.rotate_input(&input, k, [&mut colour, &mut depth, &mut mask]);
+            }
+            let rotated = [colour.as_slice(), &depth, &mask];
+            let convs = both(&|primitive| {
+                inference.low_maps(primitive, rotated, &geometry);
+            });
+            put("infer_convs_ms", convs);
+            put("infer_rotations_ms", infer - convs);
+            if !args.no_peer {
+                let ours = [Primitive::Push, Primitive::Grasp]
+                    .map(|primitive| inference.low_maps(primitive, rotated, &geometry));
+                let run = peer::PeerRun {
+                    nets: &nets,
+                    rotated,
+                    n: ROTATIONS as usize,
+                    padded: geometry.padded(),
+                    ours: [&ours[0], &ours[1]],
+                    reps,
+                    threads: rayon::current_num_threads(),
+                };
+                match peer::onnxruntime_figures(&python, &run) {
+                    Ok(peer) => {
+                        let ort = peer["ort_infer_ms"].as_f64().unwrap_or(f64::NAN);
+                        put("ort_infer_16rot_ms", ort);
+                        put("infer_vs_ort", infer / ort);
+                        put(
+                            "ort_max_rel_diff",
+                            peer["ort_max_rel_diff"].as_f64().unwrap_or(f64::NAN),
+                        );
+                        peer_figures.extend(peer);
+                    }
+                    Err(why) => peer_missing = Some(format!("{why:#}")),
+                }
+            }
+        }
         let sample = |k: usize| Sample {
             input: input.clone(),
             action: Action {
@@ -306,11 +367,6 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         // A grasp trains its rotation and the symmetric one; backward costs about twice the
         // forward.
         let gflop_batch_train = 3.0 * 8.0 * 2.0 * per_rotation / 1e9;
-        let suffix = format!("_{side}");
-        let mut put = |name: &str, value: f64| {
-            figures.insert(format!("{name}{suffix}"), value.into());
-        };
-        put("infer_16rot_ms", infer);
         put("train_step_ms", train);
         put("batch_train_step_ms", batch_train);
         put("gflop_per_inference", gflop_inference);
@@ -321,6 +377,26 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         "matmul_peak_gflops".into(),
         matmul_peak_gflops(&device, reps).into(),
     );
+    match peer_missing {
+        None if args.no_peer => {
+            figures.insert("onnxruntime".into(), "not run (--no-peer)".into());
+        }
+        None => {
+            for key in ["sgemm_peak_gflops", "ort_version", "numpy_version"] {
+                if let Some(value) = peer_figures.remove(key) {
+                    figures.insert(key.into(), value);
+                }
+            }
+        }
+        Some(why) => {
+            eprintln!(
+                "onnxruntime was not run ({why}); to run it beside ours:\n  \
+                 python3 -m venv target/bench-venv && \
+                 target/bench-venv/bin/python3 -m pip install onnxruntime onnx numpy"
+            );
+            figures.insert("onnxruntime".into(), format!("not run: {why}").into());
+        }
+    }
     print_figures(&serde_json::Value::Object(figures), args.json)
 }
 

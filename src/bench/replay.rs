@@ -13,10 +13,9 @@
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::Result;
 use buffer::{BufferConfig, PrioritizedReplay, Transition};
 use clap::Args;
 use rand::{RngExt, SeedableRng};
@@ -24,6 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use serde_json::{Map, Value};
 use sim::{Action, Heightmaps, PixelGrid, Primitive};
 
+use super::python::{default_python, script_figures};
 use super::{median, print_figures, timed};
 
 /// Items per sampled batch, ours and cpprb's.
@@ -36,8 +36,6 @@ const INSERT_CHUNK: usize = 1 << 14;
 const OBS_SIDE: usize = 8;
 /// Learner steps run before the timed ones.
 const WARM_UP_STEPS: usize = 20;
-/// Where `make bench` installs cpprb, relative to the repository root.
-const BENCH_VENV_PYTHON: &str = "target/bench-venv/bin/python3";
 
 #[derive(Args)]
 pub struct BufferBenchArgs {
@@ -223,53 +221,21 @@ fn status_mb(field: &str) -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-fn default_python() -> PathBuf {
-    let venv = Path::new(BENCH_VENV_PYTHON);
-    if venv.exists() {
-        venv.to_path_buf()
-    } else {
-        PathBuf::from("python3")
-    }
-}
-
 /// Runs [`CPPRB_SCRIPT`]: its figures, named as ours (`insert_per_s_2p17`, ...), with
 /// `version` and `peak_rss_mb`.
 fn run_cpprb(python: &Path, steps: usize) -> Result<Map<String, Value>> {
     let capacities = CAPACITY_EXPONENTS
         .map(|e| (1usize << e).to_string())
         .join(",");
-    let output = Command::new(python)
-        .arg("-c")
-        .arg(CPPRB_SCRIPT)
-        .args([
-            capacities,
-            BATCH.to_string(),
-            steps.to_string(),
-            WARM_UP_STEPS.to_string(),
-            INSERT_CHUNK.to_string(),
-            OBS_SIDE.to_string(),
-        ])
-        .output()
-        .with_context(|| format!("{} did not start", python.display()))?;
-    if !output.status.success() {
-        let stderr = String::from_utf8_lossy(&output.stderr);
-        bail!(
-            "{} failed: {}",
-            python.display(),
-            stderr.lines().last().unwrap_or("no message")
-        );
-    }
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    let last = stdout
-        .lines()
-        .last()
-        .context("cpprb's script printed nothing")?;
-    let figures: Map<String, Value> =
-        serde_json::from_str(last).context("cpprb's script printed no JSON object")?;
-    if let Some(missing) = figures.get("missing") {
-        bail!("{}", missing.as_str().unwrap_or("cpprb is missing"));
-    }
-    Ok(figures)
+    let args = [
+        capacities,
+        BATCH.to_string(),
+        steps.to_string(),
+        WARM_UP_STEPS.to_string(),
+        INSERT_CHUNK.to_string(),
+        OBS_SIDE.to_string(),
+    ];
+    script_figures(python, CPPRB_SCRIPT, &args)
 }
 
 /// cpprb's side, run the way ours is: inserts with priorities in chunks until the buffer is

@@ -242,11 +242,8 @@ impl Policy {
                 }
             }
             if let Some(w) = newest {
-                self.agent.nets = self
-                    .agent
-                    .nets
-                    .clone()
-                    .load_bytes(&w.bytes)
+                self.agent
+                    .load_weights(&w.bytes)
                     .context("loading the learner's weights")?;
                 self.version = w.version;
                 return Ok(true);
