@@ -185,20 +185,24 @@ impl Geometry {
             &input.mask,
         ];
         let sources = &self.sources[rotation as usize];
+        let area = sources.len();
         let [colour, depth, mask] = out;
-        for (which, plane) in planes.iter().enumerate() {
-            let target: &mut Vec<f32> = match which {
-                0..=2 => colour,
-                3 => depth,
-                _ => mask,
-            };
-            target.extend(sources.iter().map(|&s| {
-                if s == OUTSIDE {
-                    table[which]
+        // One pass over the table writes all five planes.
+        let (c, d, m) = (colour.len(), depth.len(), mask.len());
+        colour.resize(c + 3 * area, 0.0);
+        depth.resize(d + area, 0.0);
+        mask.resize(m + area, 0.0);
+        let (red, rest) = colour[c..].split_at_mut(area);
+        let (green, blue) = rest.split_at_mut(area);
+        let mut targets = [red, green, blue, &mut depth[d..], &mut mask[m..]];
+        for (i, &s) in sources.iter().enumerate() {
+            for ((target, plane), outside) in targets.iter_mut().zip(&planes).zip(&table) {
+                target[i] = if s == OUTSIDE {
+                    *outside
                 } else {
                     plane[s as usize]
-                }
-            }));
+                };
+            }
         }
     }
 

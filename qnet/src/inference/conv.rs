@@ -24,12 +24,15 @@ pub struct FoldedConv {
     relu: bool,
 }
 
+/// How many unfolded values a band of output rows may take (96 KiB): small enough to stay
+/// in a core's cache beside the weights and the output.
+const COLUMN_BAND_VALUES: usize = 24 * 1024;
+
 /// Scratch memory of the unfolding, kept between calls so a forward pass allocates nothing
 /// once it has run.
 #[derive(Default)]
 pub struct Scratch {
     columns: Vec<f32>,
-    phases: Vec<f32>,
 }
 
 /// A tensor's values, row-major.
@@ -132,23 +135,39 @@ impl FoldedConv {
     pub fn run(&self, input: &[f32], h: usize, out: &mut [f32], scratch: &mut Scratch) -> usize {
         let side = self.out_side(h);
         let n = side * side;
-        let depth = self.channels_in * self.kernel * self.kernel;
         debug_assert_eq!(input.len(), self.channels_in * h * h);
         let out = &mut out[..self.channels_out * n];
-        let columns: &[f32] = if self.kernel == 1 && self.stride == 1 && self.padding == 0 {
-            input
-        } else {
-            self.unfold(input, h, side, scratch);
-            &scratch.columns
-        };
-        // SAFETY: `out` is `channels_out x n`, `weights` `channels_out x depth`, `columns`
-        // `depth x n`, all row-major and alive for the call; strides are in elements.
+        if self.kernel == 1 && self.stride == 1 && self.padding == 0 {
+            self.multiply(input, n, out, 0, n);
+            return side;
+        }
+        // A band of output rows at a time, so its unfolded columns stay in the cache
+        // between being written and being multiplied.
+        let depth = self.channels_in * self.kernel * self.kernel;
+        let band = (COLUMN_BAND_VALUES / (depth * side)).clamp(1, side);
+        for first in (0..side).step_by(band) {
+            let rows = first..(first + band).min(side);
+            let pixels = rows.len() * side;
+            self.unfold(input, h, side, rows, scratch);
+            self.multiply(&scratch.columns, pixels, out, first * side, n);
+        }
+        side
+    }
+
+    /// `out[:, at..at + pixels] = relu?(weights x columns + bias)`, where `columns` is
+    /// `depth x pixels` and `out` `channels_out x n`, row-major.
+    fn multiply(&self, columns: &[f32], pixels: usize, out: &mut [f32], at: usize, n: usize) {
+        let depth = self.channels_in * self.kernel * self.kernel;
+        debug_assert!(columns.len() >= depth * pixels && at + pixels <= n);
+        // SAFETY: `out[.., at..]` is `channels_out x pixels` with row stride `n`, `weights`
+        // `channels_out x depth`, `columns` `depth x pixels`, all alive for the call and
+        // in bounds (asserted above); strides are in elements.
         unsafe {
             gemm::gemm(
                 self.channels_out,
-                n,
+                pixels,
                 depth,
-                out.as_mut_ptr(),
+                out.as_mut_ptr().add(at),
                 1,
                 n as isize,
                 false,
@@ -157,7 +176,7 @@ impl FoldedConv {
                 depth as isize,
                 columns.as_ptr(),
                 1,
-                n as isize,
+                pixels as isize,
                 0.0,
                 1.0,
                 false,
@@ -167,42 +186,33 @@ impl FoldedConv {
             );
         }
         for (plane, &b) in out.chunks_exact_mut(n).zip(&self.bias) {
+            let band = &mut plane[at..at + pixels];
             if self.relu {
-                plane.iter_mut().for_each(|v| *v = (*v + b).max(0.0));
+                band.iter_mut().for_each(|v| *v = (*v + b).max(0.0));
             } else {
-                plane.iter_mut().for_each(|v| *v += b);
+                band.iter_mut().for_each(|v| *v += b);
             }
         }
-        side
     }
 
-    /// Fills `scratch.columns` with the input unfolded: row `(c, ky, kx)` holds, for each
-    /// output pixel, the input pixel under that tap (zero in the padding). A strided
-    /// convolution first splits each input row into its `stride` phases (columns `j`, `j +
-    /// stride`, ...) so that every tap's row is a contiguous copy.
-    fn unfold(&self, input: &[f32], h: usize, side: usize, scratch: &mut Scratch) {
+    /// Fills `scratch.columns` with the input unfolded for the output rows `rows`: row `(c,
+    /// ky, kx)` holds, for each of their pixels, the input pixel under that tap (zero in the
+    /// padding).
+    fn unfold(
+        &self,
+        input: &[f32],
+        h: usize,
+        side: usize,
+        rows: std::ops::Range<usize>,
+        scratch: &mut Scratch,
+    ) {
         let (k, s, d, pad) = (self.kernel, self.stride, self.dilation, self.padding);
-        let n = side * side;
-        let phase_width = h.div_ceil(s);
-        let phases: &[f32] = if s == 1 {
-            input
-        } else {
-            let plane = h * phase_width;
-            // Every value read below is written first.
-            scratch.phases.resize(s * self.channels_in * plane, 0.0);
-            for (r, row) in input.chunks_exact(h).enumerate() {
-                for (j, taps) in row.chunks(s).enumerate() {
-                    for (phase, &v) in taps.iter().enumerate() {
-                        scratch.phases[phase * self.channels_in * plane + r * phase_width + j] = v;
-                    }
-                }
-            }
-            &scratch.phases
-        };
+        let n = rows.len() * side;
         let columns = &mut scratch.columns;
         // Every value below is written, so what the buffer held before need not be cleared.
         columns.resize(self.channels_in * k * k * n, 0.0);
         for c in 0..self.channels_in {
+            let plane = &input[c * h * h..(c + 1) * h * h];
             for ky in 0..k {
                 for kx in 0..k {
                     let row = &mut columns[((c * k + ky) * k + kx) * n..][..n];
@@ -215,22 +225,44 @@ impl FoldedConv {
                     } else {
                         (last as usize / s + 1).min(side)
                     };
-                    let first = (lo * s) as isize + shift;
-                    for (oy, out_row) in row.chunks_exact_mut(side).enumerate() {
+                    for (oy, out_row) in rows.clone().zip(row.chunks_exact_mut(side)) {
                         let iy = (oy * s + ky * d) as isize - pad as isize;
                         if lo >= hi || iy < 0 || iy >= h as isize {
                             out_row.fill(0.0);
                             continue;
                         }
-                        let (phase, start) = (first as usize % s, first as usize / s);
-                        let base = ((phase * self.channels_in + c) * h + iy as usize) * phase_width
-                            + start;
+                        let first = ((lo * s) as isize + shift) as usize;
+                        let source = &plane[iy as usize * h + first..(iy as usize + 1) * h];
                         out_row[..lo].fill(0.0);
-                        out_row[lo..hi].copy_from_slice(&phases[base..base + hi - lo]);
+                        gather(&mut out_row[lo..hi], source, s);
                         out_row[hi..].fill(0.0);
                     }
                 }
             }
         }
+    }
+}
+
+/// `out[j] = source[j * stride]`; the strides the nets use get loops the compiler can
+/// vectorise.
+fn gather(out: &mut [f32], source: &[f32], stride: usize) {
+    match stride {
+        1 => out.copy_from_slice(&source[..out.len()]),
+        2 => gather_fixed::<2>(out, source),
+        _ => out
+            .iter_mut()
+            .zip(source.iter().step_by(stride))
+            .for_each(|(o, &v)| *o = v),
+    }
+}
+
+fn gather_fixed<const S: usize>(out: &mut [f32], source: &[f32]) {
+    // The last tap may lack the row's final `S - 1` values; take it apart.
+    let whole = out.len().min(source.len() / S);
+    for (o, taps) in out[..whole].iter_mut().zip(source.chunks_exact(S)) {
+        *o = taps[0];
+    }
+    if whole < out.len() {
+        out[whole] = source[whole * S];
     }
 }
