@@ -5,7 +5,6 @@
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
-use burn::tensor::Slice;
 use burn::tensor::activation::relu;
 use burn::tensor::ops::PadMode;
 
@@ -58,11 +57,13 @@ fn convolve(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 }
 
 /// `conv` (square kernel, stride and dilation, padded to keep the size: the net's every
-/// convolution) as one matrix product of its weights with the input unfolded by strided
-/// slices. Forward it equals burn's `conv2d`; backward, its weight gradient is one GEMM over
-/// the batch's pixels, where burn's generic `conv2d_weight_backward` runs a convolution
-/// whose kernel is the whole output gradient, several times slower at a training step's one
-/// or two items (`pushgrasp bench learner`).
+/// convolution) as one matrix product of its weights with the input unfolded by one gather
+/// (`select` over precomputed tap indices). Forward it equals burn's `conv2d`; backward, its
+/// weight gradient is one GEMM over the batch's pixels, where burn's generic
+/// `conv2d_weight_backward` runs a convolution whose kernel is the whole output gradient,
+/// several times slower at a training step's one or two items, and its input gradient one
+/// scatter-add (nine strided slices and their concatenation, before, took the training step
+/// 1.6x as long: `pushgrasp bench learner`).
 fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let [n, channels, height, width] = x.dims();
     let [out_channels, _, k, _] = conv.weight.dims();
@@ -73,27 +74,26 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         x.reshape([n, channels, height * width])
     } else {
         let padded = x.pad((pad, pad, pad, pad), PadMode::Constant(0.0));
-        let taps: Vec<Tensor<4>> = (0..k * k)
-            .map(|tap| {
-                let (row, col) = ((tap / k) * dilation, (tap % k) * dilation);
-                let rows = Slice::new(
-                    row as isize,
-                    Some((row + stride * (out_h - 1) + 1) as isize),
-                    stride as isize,
-                );
-                let cols = Slice::new(
-                    col as isize,
-                    Some((col + stride * (out_w - 1) + 1) as isize),
-                    stride as isize,
-                );
-                padded
-                    .clone()
-                    .slice([Slice::full(), Slice::full(), rows, cols])
-                    .reshape([n, channels, 1, out_h * out_w])
-            })
-            .collect();
-        // Rows in the weights' (channel, kernel row, kernel column) order.
-        Tensor::cat(taps, 2).reshape([n, channels * k * k, out_h * out_w])
+        let (padded_h, padded_w) = (height + 2 * pad, width + 2 * pad);
+        // Each tap's source pixel for each output pixel, in the weights' (kernel row, kernel
+        // column) order; with the channels outside, rows come out in (channel, row, column).
+        let mut taps = Vec::with_capacity(k * k * out_h * out_w);
+        for tap in 0..k * k {
+            let (row, col) = ((tap / k) * dilation, (tap % k) * dilation);
+            for y in 0..out_h {
+                for x in 0..out_w {
+                    taps.push(((y * stride + row) * padded_w + x * stride + col) as i64);
+                }
+            }
+        }
+        let taps = Tensor::<1, Int>::from_data(
+            TensorData::new(taps, [k * k * out_h * out_w]),
+            &padded.device(),
+        );
+        padded
+            .reshape([n * channels, padded_h * padded_w])
+            .select(1, taps)
+            .reshape([n, channels * k * k, out_h * out_w])
     };
     let weights = conv
         .weight
@@ -196,5 +196,61 @@ impl PrimitiveNet {
                 .forward(convolve(&self.head_hidden, x)),
         );
         convolve(&self.head_out, x)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::tensor::Distribution;
+
+    use super::*;
+
+    /// `conv`'s output at `x` and the gradients of `sum(y^2) / 2` (so each output pixel's
+    /// gradient is its own value): input, weight, bias.
+    fn output_and_gradients(
+        conv: &Conv2d,
+        x: &Tensor<4>,
+        run: fn(&Conv2d, Tensor<4>) -> Tensor<4>,
+    ) -> [Vec<f32>; 4] {
+        let x = x.clone().require_grad();
+        let y = run(conv, x.clone());
+        let grads = (y.clone() * y.clone()).sum().mul_scalar(0.5).backward();
+        let values = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+        let bias = conv
+            .bias
+            .as_ref()
+            .expect("a bias")
+            .val()
+            .grad(&grads)
+            .unwrap();
+        [
+            values(y),
+            values(x.grad(&grads).unwrap()),
+            values(conv.weight.val().grad(&grads).unwrap()),
+            bias.into_data().try_to_vec::<f32>().unwrap(),
+        ]
+    }
+
+    #[test]
+    fn the_gemm_convolution_and_its_gradients_equal_burns_conv2d() {
+        let device = Device::flex().autodiff();
+        for (stride, dilation) in [(2, 1), (1, 1), (1, 2)] {
+            let conv = ConvBlock::new([3, 5], stride, dilation, &device).conv;
+            let x = Tensor::<4>::random([2, 3, 12, 12], Distribution::Default, &device);
+            let ours = output_and_gradients(&conv, &x, conv_as_gemm);
+            let burns = output_and_gradients(&conv, &x, |conv, x| conv.forward(x));
+            for (what, (a, b)) in ["output", "input grad", "weight grad", "bias grad"]
+                .iter()
+                .zip(ours.iter().zip(&burns))
+            {
+                assert_eq!(a.len(), b.len(), "{what}");
+                let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+                let worst = a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+                assert!(
+                    scale > 0.0 && worst <= 1e-5 * scale,
+                    "stride {stride}, dilation {dilation}: {what} differs by {worst} of {scale}"
+                );
+            }
+        }
     }
 }
