@@ -19,6 +19,7 @@ pub mod input;
 pub mod layers;
 pub mod net;
 pub mod qnets;
+pub mod unfold;
 
 pub use acting::ActingNets;
 pub use config::QNetConfig;

@@ -6,9 +6,9 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use burn::tensor::ops::PadMode;
 
 use crate::config::QNetConfig;
+use crate::unfold::{Taps, unfold};
 
 /// A 3x3 convolution (stride 2 to go down, or stride 1 with a dilation to see further),
 /// batch norm and ReLU; padded so only the stride changes the size.
@@ -57,13 +57,11 @@ fn convolve(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 }
 
 /// `conv` (square kernel, stride and dilation, padded to keep the size: the net's every
-/// convolution) as one matrix product of its weights with the input unfolded by one gather
-/// (`select` over precomputed tap indices). Forward it equals burn's `conv2d`; backward, its
-/// weight gradient is one GEMM over the batch's pixels, where burn's generic
-/// `conv2d_weight_backward` runs a convolution whose kernel is the whole output gradient,
-/// several times slower at a training step's one or two items, and its input gradient one
-/// scatter-add (nine strided slices and their concatenation, before, took the training step
-/// 1.6x as long: `pushgrasp bench learner`).
+/// convolution) as one matrix product of its weights with the input unfolded
+/// ([`crate::unfold`]). Forward it equals burn's `conv2d`; backward, its weight gradient is
+/// one GEMM over the batch's pixels, where burn's generic `conv2d_weight_backward` runs a
+/// convolution whose kernel is the whole output gradient, several times slower at a training
+/// step's one or two items, and its input gradient the unfolding's own fold.
 fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let [n, channels, height, width] = x.dims();
     let [out_channels, _, k, _] = conv.weight.dims();
@@ -73,27 +71,13 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let columns = if k == 1 && stride == 1 {
         x.reshape([n, channels, height * width])
     } else {
-        let padded = x.pad((pad, pad, pad, pad), PadMode::Constant(0.0));
-        let (padded_h, padded_w) = (height + 2 * pad, width + 2 * pad);
-        // Each tap's source pixel for each output pixel, in the weights' (kernel row, kernel
-        // column) order; with the channels outside, rows come out in (channel, row, column).
-        let mut taps = Vec::with_capacity(k * k * out_h * out_w);
-        for tap in 0..k * k {
-            let (row, col) = ((tap / k) * dilation, (tap % k) * dilation);
-            for y in 0..out_h {
-                for x in 0..out_w {
-                    taps.push(((y * stride + row) * padded_w + x * stride + col) as i64);
-                }
-            }
-        }
-        let taps = Tensor::<1, Int>::from_data(
-            TensorData::new(taps, [k * k * out_h * out_w]),
-            &padded.device(),
-        );
-        padded
-            .reshape([n * channels, padded_h * padded_w])
-            .select(1, taps)
-            .reshape([n, channels * k * k, out_h * out_w])
+        let taps = Taps {
+            kernel: k,
+            stride,
+            dilation,
+            padding: pad,
+        };
+        unfold(x, taps)
     };
     let weights = conv
         .weight

@@ -7,6 +7,7 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::prelude::*;
 
 use crate::error::QNetError;
+use crate::unfold::{Taps, unfold_channel};
 
 /// A square convolution over one image `[channels_in, h, h]`, row-major, written to
 /// `[channels_out, h_out, h_out]`.
@@ -17,10 +18,7 @@ pub struct FoldedConv {
     bias: Vec<f32>,
     channels_in: usize,
     channels_out: usize,
-    kernel: usize,
-    stride: usize,
-    dilation: usize,
-    padding: usize,
+    taps: Taps,
     relu: bool,
 }
 
@@ -113,10 +111,12 @@ impl FoldedConv {
             bias,
             channels_in,
             channels_out,
-            kernel,
-            stride: conv.stride[0],
-            dilation: conv.dilation[0],
-            padding,
+            taps: Taps {
+                kernel,
+                stride: conv.stride[0],
+                dilation: conv.dilation[0],
+                padding,
+            },
             relu,
         })
     }
@@ -127,7 +127,7 @@ impl FoldedConv {
 
     /// Side of the output for an input of side `h`.
     pub fn out_side(&self, h: usize) -> usize {
-        (h + 2 * self.padding - self.dilation * (self.kernel - 1) - 1) / self.stride + 1
+        self.taps.out_side(h)
     }
 
     /// Convolves `input` (`[channels_in, h, h]`) into `out`, which must hold
@@ -137,13 +137,13 @@ impl FoldedConv {
         let n = side * side;
         debug_assert_eq!(input.len(), self.channels_in * h * h);
         let out = &mut out[..self.channels_out * n];
-        if self.kernel == 1 && self.stride == 1 && self.padding == 0 {
+        if self.taps.kernel == 1 && self.taps.stride == 1 && self.taps.padding == 0 {
             self.multiply(input, n, out, 0, n);
             return side;
         }
         // A band of output rows at a time, so its unfolded columns stay in the cache
         // between being written and being multiplied.
-        let depth = self.channels_in * self.kernel * self.kernel;
+        let depth = self.channels_in * self.taps.per_channel();
         let band = (COLUMN_BAND_VALUES / (depth * side)).clamp(1, side);
         for first in (0..side).step_by(band) {
             let rows = first..(first + band).min(side);
@@ -157,7 +157,7 @@ impl FoldedConv {
     /// `out[:, at..at + pixels] = relu?(weights x columns + bias)`, where `columns` is
     /// `depth x pixels` and `out` `channels_out x n`, row-major.
     fn multiply(&self, columns: &[f32], pixels: usize, out: &mut [f32], at: usize, n: usize) {
-        let depth = self.channels_in * self.kernel * self.kernel;
+        let depth = self.channels_in * self.taps.per_channel();
         debug_assert!(columns.len() >= depth * pixels && at + pixels <= n);
         // SAFETY: `out[.., at..]` is `channels_out x pixels` with row stride `n`, `weights`
         // `channels_out x depth`, `columns` `depth x pixels`, all alive for the call and
@@ -206,63 +206,15 @@ impl FoldedConv {
         rows: std::ops::Range<usize>,
         scratch: &mut Scratch,
     ) {
-        let (k, s, d, pad) = (self.kernel, self.stride, self.dilation, self.padding);
-        let n = rows.len() * side;
+        let per_channel = self.taps.per_channel() * rows.len() * side;
         let columns = &mut scratch.columns;
-        // Every value below is written, so what the buffer held before need not be cleared.
-        columns.resize(self.channels_in * k * k * n, 0.0);
-        for c in 0..self.channels_in {
-            let plane = &input[c * h * h..(c + 1) * h * h];
-            for ky in 0..k {
-                for kx in 0..k {
-                    let row = &mut columns[((c * k + ky) * k + kx) * n..][..n];
-                    // Output columns whose tap falls inside the image: [lo, hi).
-                    let shift = (kx * d) as isize - pad as isize;
-                    let lo = ((-shift).max(0) as usize).div_ceil(s).min(side);
-                    let last = h as isize - 1 - shift;
-                    let hi = if last < 0 {
-                        0
-                    } else {
-                        (last as usize / s + 1).min(side)
-                    };
-                    for (oy, out_row) in rows.clone().zip(row.chunks_exact_mut(side)) {
-                        let iy = (oy * s + ky * d) as isize - pad as isize;
-                        if lo >= hi || iy < 0 || iy >= h as isize {
-                            out_row.fill(0.0);
-                            continue;
-                        }
-                        let first = ((lo * s) as isize + shift) as usize;
-                        let source = &plane[iy as usize * h + first..(iy as usize + 1) * h];
-                        out_row[..lo].fill(0.0);
-                        gather(&mut out_row[lo..hi], source, s);
-                        out_row[hi..].fill(0.0);
-                    }
-                }
-            }
+        // Every value is written, so what the buffer held before need not be cleared.
+        columns.resize(self.channels_in * per_channel, 0.0);
+        for (plane, out) in input
+            .chunks_exact(h * h)
+            .zip(columns.chunks_exact_mut(per_channel))
+        {
+            unfold_channel(plane, h, &self.taps, rows.clone(), out);
         }
-    }
-}
-
-/// `out[j] = source[j * stride]`; the strides the nets use get loops the compiler can
-/// vectorise.
-fn gather(out: &mut [f32], source: &[f32], stride: usize) {
-    match stride {
-        1 => out.copy_from_slice(&source[..out.len()]),
-        2 => gather_fixed::<2>(out, source),
-        _ => out
-            .iter_mut()
-            .zip(source.iter().step_by(stride))
-            .for_each(|(o, &v)| *o = v),
-    }
-}
-
-fn gather_fixed<const S: usize>(out: &mut [f32], source: &[f32]) {
-    // The last tap may lack the row's final `S - 1` values; take it apart.
-    let whole = out.len().min(source.len() / S);
-    for (o, taps) in out[..whole].iter_mut().zip(source.chunks_exact(S)) {
-        *o = taps[0];
-    }
-    if whole < out.len() {
-        out[whole] = source[whole * S];
     }
 }
