@@ -13,13 +13,13 @@ pub mod acting;
 pub mod config;
 pub mod device;
 pub mod error;
+pub mod gemm_conv;
 pub mod geometry;
 pub mod inference;
 pub mod input;
 pub mod layers;
 pub mod net;
 pub mod qnets;
-pub mod unfold;
 
 pub use acting::ActingNets;
 pub use config::QNetConfig;

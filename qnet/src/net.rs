@@ -8,7 +8,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use crate::config::QNetConfig;
-use crate::unfold::{Taps, unfold};
+use crate::gemm_conv::{self, Taps};
 
 /// A 3x3 convolution (stride 2 to go down, or stride 1 with a dilation to see further),
 /// batch norm and ReLU; padded so only the stride changes the size.
@@ -68,8 +68,11 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let (stride, dilation) = (conv.stride[0], conv.dilation[0]);
     let pad = dilation * (k - 1) / 2;
     let (out_h, out_w) = ((height - 1) / stride + 1, (width - 1) / stride + 1);
-    let columns = if k == 1 && stride == 1 {
-        x.reshape([n, channels, height * width])
+    let mut y = if k == 1 && stride == 1 {
+        let weights = conv.weight.val().reshape([1, out_channels, channels]);
+        weights
+            .matmul(x.reshape([n, channels, height * width]))
+            .reshape([n, out_channels, out_h, out_w])
     } else {
         let taps = Taps {
             kernel: k,
@@ -77,17 +80,12 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
             dilation,
             padding: pad,
         };
-        unfold(x, taps)
+        gemm_conv::conv(x, conv.weight.val(), taps)
     };
-    let weights = conv
-        .weight
-        .val()
-        .reshape([1, out_channels, channels * k * k]);
-    let mut y = weights.matmul(columns);
     if let Some(bias) = &conv.bias {
-        y = y + bias.val().reshape([1, out_channels, 1]);
+        y = y + bias.val().reshape([1, out_channels, 1, 1]);
     }
-    y.reshape([n, out_channels, out_h, out_w])
+    y
 }
 
 /// Blocks applied in turn.

@@ -7,7 +7,7 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::prelude::*;
 
 use crate::error::QNetError;
-use crate::unfold::{Taps, unfold_channel};
+use crate::gemm_conv::{Taps, View, band_rows, multiply, unfold_item};
 
 /// A square convolution over one image `[channels_in, h, h]`, row-major, written to
 /// `[channels_out, h_out, h_out]`.
@@ -21,10 +21,6 @@ pub struct FoldedConv {
     taps: Taps,
     relu: bool,
 }
-
-/// How many unfolded values a band of output rows may take (96 KiB): small enough to stay
-/// in a core's cache beside the weights and the output.
-const COLUMN_BAND_VALUES: usize = 24 * 1024;
 
 /// Scratch memory of the unfolding, kept between calls so a forward pass allocates nothing
 /// once it has run.
@@ -144,11 +140,11 @@ impl FoldedConv {
         // A band of output rows at a time, so its unfolded columns stay in the cache
         // between being written and being multiplied.
         let depth = self.channels_in * self.taps.per_channel();
-        let band = (COLUMN_BAND_VALUES / (depth * side)).clamp(1, side);
+        let band = band_rows(depth, side);
         for first in (0..side).step_by(band) {
             let rows = first..(first + band).min(side);
             let pixels = rows.len() * side;
-            self.unfold(input, h, side, rows, scratch);
+            unfold_item(input, h, &self.taps, rows, &mut scratch.columns);
             self.multiply(&scratch.columns, pixels, out, first * side, n);
         }
         side
@@ -161,28 +157,22 @@ impl FoldedConv {
         debug_assert!(columns.len() >= depth * pixels && at + pixels <= n);
         // SAFETY: `out[.., at..]` is `channels_out x pixels` with row stride `n`, `weights`
         // `channels_out x depth`, `columns` `depth x pixels`, all alive for the call and
-        // in bounds (asserted above); strides are in elements.
+        // in bounds (asserted above).
         unsafe {
-            gemm::gemm(
-                self.channels_out,
-                pixels,
-                depth,
-                out.as_mut_ptr().add(at),
-                1,
-                n as isize,
+            multiply(
+                [self.channels_out, pixels, depth],
+                (out.as_mut_ptr().add(at), n as isize, 1),
                 false,
-                self.weights.as_ptr(),
-                1,
-                depth as isize,
-                columns.as_ptr(),
-                1,
-                pixels as isize,
-                0.0,
-                1.0,
-                false,
-                false,
-                false,
-                gemm::Parallelism::None,
+                View {
+                    ptr: self.weights.as_ptr(),
+                    row: depth as isize,
+                    col: 1,
+                },
+                View {
+                    ptr: columns.as_ptr(),
+                    row: pixels as isize,
+                    col: 1,
+                },
             );
         }
         for (plane, &b) in out.chunks_exact_mut(n).zip(&self.bias) {
@@ -192,29 +182,6 @@ impl FoldedConv {
             } else {
                 band.iter_mut().for_each(|v| *v += b);
             }
-        }
-    }
-
-    /// Fills `scratch.columns` with the input unfolded for the output rows `rows`: row `(c,
-    /// ky, kx)` holds, for each of their pixels, the input pixel under that tap (zero in the
-    /// padding).
-    fn unfold(
-        &self,
-        input: &[f32],
-        h: usize,
-        side: usize,
-        rows: std::ops::Range<usize>,
-        scratch: &mut Scratch,
-    ) {
-        let per_channel = self.taps.per_channel() * rows.len() * side;
-        let columns = &mut scratch.columns;
-        // Every value is written, so what the buffer held before need not be cleared.
-        columns.resize(self.channels_in * per_channel, 0.0);
-        for (plane, out) in input
-            .chunks_exact(h * h)
-            .zip(columns.chunks_exact_mut(per_channel))
-        {
-            unfold_channel(plane, h, &self.taps, rows.clone(), out);
         }
     }
 }
