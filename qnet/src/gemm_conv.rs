@@ -111,13 +111,7 @@ fn fold_channel(columns: &[f32], h: usize, taps: &Taps, rows: Range<usize>, plan
             for (oy, grad_row) in rows.clone().zip(row.chunks_exact(side)) {
                 if let Some(iy) = taps.source_row(ky, oy, h) {
                     let target = &mut plane[iy * h + first..(iy + 1) * h];
-                    for (t, &g) in target
-                        .iter_mut()
-                        .step_by(taps.stride)
-                        .zip(&grad_row[lo..hi])
-                    {
-                        *t += g;
-                    }
+                    scatter_add(target, &grad_row[lo..hi], taps.stride);
                 }
             }
         }
@@ -134,6 +128,29 @@ fn gather(out: &mut [f32], source: &[f32], stride: usize) {
             .iter_mut()
             .zip(source.iter().step_by(stride))
             .for_each(|(o, &v)| *o = v),
+    }
+}
+
+/// `target[j * stride] += values[j]`: the reverse of [`gather`].
+fn scatter_add(target: &mut [f32], values: &[f32], stride: usize) {
+    match stride {
+        1 => target.iter_mut().zip(values).for_each(|(t, &v)| *t += v),
+        2 => scatter_add_fixed::<2>(target, values),
+        _ => target
+            .iter_mut()
+            .step_by(stride)
+            .zip(values)
+            .for_each(|(t, &v)| *t += v),
+    }
+}
+
+fn scatter_add_fixed<const S: usize>(target: &mut [f32], values: &[f32]) {
+    let whole = values.len().min(target.len() / S);
+    for (taps, &v) in target.chunks_exact_mut(S).zip(&values[..whole]) {
+        taps[0] += v;
+    }
+    if whole < values.len() {
+        target[whole * S] += values[whole];
     }
 }
 
