@@ -10,6 +10,7 @@
 //! several times faster.
 
 pub mod acting;
+pub mod batch_norm;
 pub mod config;
 pub mod device;
 pub mod error;

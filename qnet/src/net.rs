@@ -7,6 +7,7 @@ use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use crate::batch_norm;
 use crate::config::QNetConfig;
 use crate::gemm_conv::{self, Taps};
 
@@ -41,7 +42,7 @@ impl ConvBlock {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(self.norm.forward(convolve(&self.conv, x)))
+        relu(batch_norm::forward(&self.norm, convolve(&self.conv, x)))
     }
 }
 
@@ -172,11 +173,14 @@ impl PrimitiveNet {
             ],
             1,
         );
-        let x = relu(self.head_norm_in.forward(self.fused.forward(features)));
-        let x = relu(
-            self.head_norm_hidden
-                .forward(convolve(&self.head_hidden, x)),
-        );
+        let x = relu(batch_norm::forward(
+            &self.head_norm_in,
+            self.fused.forward(features),
+        ));
+        let x = relu(batch_norm::forward(
+            &self.head_norm_hidden,
+            convolve(&self.head_hidden, x),
+        ));
         convolve(&self.head_out, x)
     }
 }
@@ -233,6 +237,52 @@ mod tests {
                     "stride {stride}, dilation {dilation}: {what} differs by {worst} of {scale}"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn batch_norm_in_training_equals_burns_output_gradients_and_running_statistics() {
+        let device = Device::flex().autodiff();
+        let x = Tensor::<4>::random([3, 5, 7, 7], Distribution::Default, &device).mul_scalar(3.0);
+        let run = |ours: bool| {
+            let norm = BatchNormConfig::new(5).init(&device);
+            let x = x.clone().require_grad();
+            let y = if ours {
+                batch_norm::forward(&norm, x.clone())
+            } else {
+                norm.forward(x.clone())
+            };
+            // A loss whose gradient differs per pixel, so every term of the backward counts.
+            let grads = (y.clone() * y.clone() * x.clone().detach())
+                .sum()
+                .backward();
+            let values4 = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+            let values1 = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
+            [
+                values4(y),
+                values4(x.grad(&grads).unwrap()),
+                values1(norm.gamma.val().grad(&grads).unwrap()),
+                values1(norm.beta.val().grad(&grads).unwrap()),
+                values1(norm.running_mean.value_sync()),
+                values1(norm.running_var.value_sync()),
+            ]
+        };
+        let (ours, burns) = (run(true), run(false));
+        let parts = [
+            "output",
+            "input grad",
+            "gamma grad",
+            "beta grad",
+            "running mean",
+            "running var",
+        ];
+        for ((what, a), b) in parts.iter().zip(&ours).zip(&burns) {
+            let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+            let worst = a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+            assert!(
+                scale > 0.0 && worst <= 1e-4 * scale,
+                "{what}: {worst} of {scale}"
+            );
         }
     }
 }

@@ -1,0 +1,376 @@
+//! Batch norm in training as an operation of its own: a quarter of a one-grasp training step
+//! went to burn's generic `batch_norm_train` and its backward, which move every channel to
+//! the front (a transposed copy of the activation) for each of their statistics. On the CPU
+//! backend the statistics, the normalisation and the three gradients are plain loops over
+//! each channel's planes; elsewhere (wgpu) burn's own operations. The module keeps burn's
+//! [`BatchNorm`] (its parameters, running statistics and their update), so checkpoints and
+//! the inference path do not change.
+
+use burn::backend::autodiff::NodeId;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::ops::{FloatTensorOps, ModuleOps};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, Flex, TensorMetadata, backend_extension};
+use burn::nn::BatchNorm;
+use burn::prelude::*;
+use burn::tensor::{DType, Slice, TensorData};
+use rayon::prelude::*;
+
+/// The operation on a backend: inputs `[n, c, ...]`, per-channel `gamma`, `beta`, and the
+/// batch statistics `[2, c]` (mean, then biased variance).
+#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"))]
+pub trait NormBackend: Backend {
+    /// The batch mean and biased variance of each channel, `[2, c]`; no gradient.
+    fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
+        composed::statistics::<Self>(x)
+    }
+
+    /// `(x - mean) / sqrt(variance + epsilon) * gamma + beta` with the batch's statistics.
+    fn norm_train(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> FloatTensor<Self> {
+        Self::batch_norm_train(x, gamma, beta, epsilon).output
+    }
+
+    /// The gradients of [`NormBackend::norm_train`]: input, gamma and beta, stacked as the
+    /// input's values followed by gamma's and beta's (`[n x c x ... + 2c]`).
+    fn norm_train_grads(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        epsilon: f64,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        composed::grads::<Self>(x, gamma, epsilon, grad)
+    }
+}
+
+/// One channel's values across the batch: `x` as `[n, c, m]`, channel `k`.
+fn channel(x: &[f32], c: usize, m: usize, k: usize) -> impl Iterator<Item = &[f32]> {
+    x.chunks_exact(c * m)
+        .map(move |item| &item[k * m..(k + 1) * m])
+}
+
+/// Mean and biased variance of one channel (two passes, in f64 sums).
+fn moments(x: &[f32], c: usize, m: usize, k: usize) -> (f32, f32) {
+    let count = (x.len() / c) as f64;
+    let mean = channel(x, c, m, k)
+        .map(|p| p.iter().map(|&v| v as f64).sum::<f64>())
+        .sum::<f64>()
+        / count;
+    let variance = channel(x, c, m, k)
+        .map(|p| p.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>())
+        .sum::<f64>()
+        / count;
+    (mean as f32, variance as f32)
+}
+
+fn f32_tensor(values: Vec<f32>, shape: Vec<usize>) -> FloatTensor<Flex> {
+    <Flex as FloatTensorOps<Flex>>::float_from_data(
+        TensorData::new(values, shape),
+        &Default::default(),
+    )
+}
+
+/// `[n, c, m]` (m values per plane) of an f32 CPU tensor, or `None` to fall back.
+fn layout(x: &FloatTensor<Flex>) -> Option<[usize; 3]> {
+    let shape = x.shape();
+    (x.dtype() == DType::F32 && shape.num_dims() >= 2).then(|| {
+        let [n, c] = [shape[0], shape[1]];
+        [n, c, shape.num_elements() / (n * c).max(1)]
+    })
+}
+
+impl NormBackend for Flex {
+    fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
+        let Some([_, c, m]) = layout(&x) else {
+            return composed::statistics::<Self>(x);
+        };
+        let x = x.to_contiguous();
+        let values: &[f32] = x.storage();
+        let moments: Vec<(f32, f32)> = (0..c)
+            .into_par_iter()
+            .map(|k| moments(values, c, m, k))
+            .collect();
+        let mut out: Vec<f32> = moments.iter().map(|m| m.0).collect();
+        out.extend(moments.iter().map(|m| m.1));
+        f32_tensor(out, vec![2, c])
+    }
+
+    fn norm_train(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> FloatTensor<Self> {
+        let Some([_, c, m]) = layout(&x) else {
+            return Self::batch_norm_train(x, gamma, beta, epsilon).output;
+        };
+        let shape = x.shape().to_vec();
+        let (x, gamma, beta) = (
+            x.to_contiguous(),
+            gamma.to_contiguous(),
+            beta.to_contiguous(),
+        );
+        let (values, gamma, beta): (&[f32], &[f32], &[f32]) =
+            (x.storage(), gamma.storage(), beta.storage());
+        let affine: Vec<(f32, f32)> = (0..c)
+            .into_par_iter()
+            .map(|k| {
+                let (mean, variance) = moments(values, c, m, k);
+                let scale = gamma[k] / (variance + epsilon as f32).sqrt();
+                (scale, beta[k] - mean * scale)
+            })
+            .collect();
+        let mut out = vec![0.0f32; values.len()];
+        out.par_chunks_mut(m)
+            .zip(values.par_chunks(m))
+            .enumerate()
+            .for_each(|(plane, (y, x))| {
+                let (scale, shift) = affine[plane % c];
+                y.iter_mut()
+                    .zip(x)
+                    .for_each(|(y, &x)| *y = x * scale + shift);
+            });
+        f32_tensor(out, shape)
+    }
+
+    fn norm_train_grads(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        epsilon: f64,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let Some([_, c, m]) = layout(&x) else {
+            return composed::grads::<Self>(x, gamma, epsilon, grad);
+        };
+        let (x, gamma, grad) = (
+            x.to_contiguous(),
+            gamma.to_contiguous(),
+            grad.to_contiguous(),
+        );
+        let (values, gamma, dy): (&[f32], &[f32], &[f32]) =
+            (x.storage(), gamma.storage(), grad.storage());
+        let count = (values.len() / c) as f32;
+        // Per channel: mean, 1 / std, sum(dy), sum(dy x_hat).
+        let sums: Vec<[f32; 4]> = (0..c)
+            .into_par_iter()
+            .map(|k| {
+                let (mean, variance) = moments(values, c, m, k);
+                let inv_std = 1.0 / (variance + epsilon as f32).sqrt();
+                let (mut sum_dy, mut sum_dy_xhat) = (0f64, 0f64);
+                for (x, dy) in channel(values, c, m, k).zip(channel(dy, c, m, k)) {
+                    for (&x, &dy) in x.iter().zip(dy) {
+                        sum_dy += dy as f64;
+                        sum_dy_xhat += (dy * (x - mean) * inv_std) as f64;
+                    }
+                }
+                [mean, inv_std, sum_dy as f32, sum_dy_xhat as f32]
+            })
+            .collect();
+        let mut out = vec![0.0f32; values.len() + 2 * c];
+        let (x_grad, parameters) = out.split_at_mut(values.len());
+        x_grad
+            .par_chunks_mut(m)
+            .zip(values.par_chunks(m).zip(dy.par_chunks(m)))
+            .enumerate()
+            .for_each(|(plane, (g, (x, dy)))| {
+                let k = plane % c;
+                let [mean, inv_std, sum_dy, sum_dy_xhat] = sums[k];
+                let factor = gamma[k] * inv_std / count;
+                for ((g, &x), &dy) in g.iter_mut().zip(x).zip(dy) {
+                    let x_hat = (x - mean) * inv_std;
+                    *g = factor * (count * dy - sum_dy - x_hat * sum_dy_xhat);
+                }
+            });
+        for (k, s) in sums.iter().enumerate() {
+            parameters[k] = s[3];
+            parameters[c + k] = s[2];
+        }
+        f32_tensor(out, vec![values.len() + 2 * c])
+    }
+}
+
+/// The operation composed from burn's own (its generic batch norm), for every backend.
+mod composed {
+    use super::*;
+
+    pub fn statistics<B: Backend>(x: FloatTensor<B>) -> FloatTensor<B> {
+        let c = x.shape()[1];
+        let device = x.device();
+        let gamma = B::float_ones([c].into(), &device, x.dtype().into());
+        let beta = B::float_zeros([c].into(), &device, x.dtype().into());
+        let result = B::batch_norm_train(x, gamma, beta, 0.0);
+        B::float_cat(
+            vec![
+                B::float_reshape(result.mean, [1, c].into()),
+                B::float_reshape(result.variance, [1, c].into()),
+            ],
+            0,
+        )
+    }
+
+    pub fn grads<B: Backend>(
+        x: FloatTensor<B>,
+        gamma: FloatTensor<B>,
+        epsilon: f64,
+        grad: FloatTensor<B>,
+    ) -> FloatTensor<B> {
+        let statistics = statistics::<B>(x.clone());
+        let c = x.shape()[1];
+        let row = |i: usize| {
+            B::float_reshape(
+                B::float_slice(
+                    statistics.clone(),
+                    &[Slice::from(i..i + 1), Slice::from(0..c)],
+                ),
+                [c].into(),
+            )
+        };
+        let grads = B::batch_norm_train_backward(x, gamma, row(0), row(1), epsilon, grad);
+        let flat = |t: FloatTensor<B>| {
+            let n = t.shape().num_elements();
+            B::float_reshape(t, [n].into())
+        };
+        B::float_cat(
+            vec![
+                flat(grads.x_grad),
+                flat(grads.gamma_grad),
+                flat(grads.beta_grad),
+            ],
+            0,
+        )
+    }
+}
+
+#[cfg(feature = "wgpu")]
+impl NormBackend for burn::backend::Cube {}
+
+impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B, C> {
+    fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
+        /// Statistics take no gradient: nothing flows back through them.
+        #[derive(Debug)]
+        struct Statistics;
+
+        impl<B: Backend> Backward<B, 1> for Statistics {
+            type State = ();
+
+            fn backward(self, _: Ops<(), 1>, _: &mut Gradients, _: &mut Checkpointer) {}
+        }
+
+        match Statistics
+            .prepare::<C>([x.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((), B::norm_statistics(x.into_primitive())),
+            OpsKind::UnTracked(prep) => prep.finish(B::norm_statistics(x.into_primitive())),
+        }
+    }
+
+    fn norm_train(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> FloatTensor<Self> {
+        #[derive(Debug)]
+        struct NormTrain;
+
+        impl<B: Backend + NormBackend> Backward<B, 3> for NormTrain {
+            /// The input and gamma, and epsilon.
+            type State = (NodeId, NodeId, f64);
+
+            fn backward(
+                self,
+                ops: Ops<Self::State, 3>,
+                grads: &mut Gradients,
+                checkpointer: &mut Checkpointer,
+            ) {
+                let [node_x, node_gamma, node_beta] = ops.parents;
+                let grad = grads.consume::<B>(&ops.node);
+                let (x_state, gamma_state, epsilon) = ops.state;
+                let x = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(x_state);
+                let gamma =
+                    checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(gamma_state);
+                let shape = x.shape();
+                let (len, c) = (shape.num_elements(), shape[1]);
+                let all = B::norm_train_grads(x, gamma, epsilon, grad);
+                let part = |range: std::ops::Range<usize>| {
+                    B::float_slice(all.clone(), &[Slice::from(range)])
+                };
+                if let Some(node) = node_x {
+                    grads.register::<B>(node.id, B::float_reshape(part(0..len), shape));
+                }
+                if let Some(node) = node_gamma {
+                    grads.register::<B>(node.id, part(len..len + c));
+                }
+                if let Some(node) = node_beta {
+                    grads.register::<B>(node.id, part(len + c..len + 2 * c));
+                }
+            }
+        }
+
+        match NormTrain
+            .prepare::<C>([x.node(), gamma.node(), beta.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(mut prep) => {
+                let x_state = prep.checkpoint(&x);
+                let gamma_state = prep.checkpoint(&gamma);
+                let output = B::norm_train(
+                    x.into_primitive(),
+                    gamma.into_primitive(),
+                    beta.into_primitive(),
+                    epsilon,
+                );
+                prep.finish((x_state, gamma_state, epsilon), output)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::norm_train(
+                x.into_primitive(),
+                gamma.into_primitive(),
+                beta.into_primitive(),
+                epsilon,
+            )),
+        }
+    }
+}
+
+/// `norm` on `x` as burn's [`BatchNorm::forward`] computes it, through [`NormBackend`] when
+/// the layer trains (its running statistics updated the same way).
+pub fn forward(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
+    if !(x.device().is_autodiff() && norm.training.is_enabled()) {
+        return norm.forward(x);
+    }
+    let device = x.device();
+    let statistics: Tensor<2> = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_statistics(
+        x.clone().detach().into_dispatch(),
+    ));
+    let output = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_train(
+        x.into_dispatch(),
+        norm.gamma.val().into_dispatch(),
+        norm.beta.val().into_dispatch(),
+        norm.epsilon,
+    ));
+    let c = statistics.dims()[1];
+    let [mean, variance] = [0, 1].map(|i| statistics.clone().slice([i..i + 1, 0..c]).reshape([c]));
+    let momentum = norm.momentum;
+    let update = |running: Tensor<1>, batch: Tensor<1>| {
+        running
+            .to_device(&device)
+            .mul_scalar(1.0 - momentum)
+            .add(batch.detach().mul_scalar(momentum))
+            .detach()
+    };
+    norm.running_mean
+        .update(update(norm.running_mean.value_sync(), mean));
+    norm.running_var
+        .update(update(norm.running_var.value_sync(), variance));
+    output
+}
