@@ -11,16 +11,19 @@ use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::ops::{FloatTensorOps, ModuleOps};
+use burn::backend::ops::ModuleOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, TensorMetadata, backend_extension};
 use burn::nn::BatchNorm;
 use burn::prelude::*;
-use burn::tensor::{DType, Slice, TensorData};
+use burn::tensor::{DType, Slice};
 use rayon::prelude::*;
 
-/// The operation on a backend: inputs `[n, c, ...]`, per-channel `gamma`, `beta`, and the
-/// batch statistics `[2, c]` (mean, then biased variance).
+use crate::gemm_conv::flex_tensor;
+
+/// The operation on a backend: inputs `[n, c, ...]`, per-channel `gamma` and `beta`, and
+/// the batch statistics `[2, c]` (mean, then biased variance) that
+/// [`NormBackend::norm_statistics`] computes once per pass.
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"))]
 pub trait NormBackend: Backend {
     /// The batch mean and biased variance of each channel, `[2, c]`; no gradient.
@@ -28,14 +31,17 @@ pub trait NormBackend: Backend {
         composed::statistics::<Self>(x)
     }
 
-    /// `(x - mean) / sqrt(variance + epsilon) * gamma + beta` with the batch's statistics.
+    /// `(x - mean) / sqrt(variance + epsilon) * gamma + beta` with the batch's `statistics`.
+    /// Its backward differentiates through the statistics as functions of `x`.
     fn norm_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
+        statistics: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
-        Self::batch_norm_train(x, gamma, beta, epsilon).output
+        let [mean, variance] = composed::split::<Self>(statistics);
+        Self::batch_norm(x, gamma, beta, mean, variance, epsilon)
     }
 
     /// The gradients of [`NormBackend::norm_train`]: input, gamma and beta, stacked as the
@@ -43,10 +49,11 @@ pub trait NormBackend: Backend {
     fn norm_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
+        statistics: FloatTensor<Self>,
         epsilon: f64,
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        composed::grads::<Self>(x, gamma, epsilon, grad)
+        composed::grads::<Self>(x, gamma, statistics, epsilon, grad)
     }
 }
 
@@ -70,25 +77,19 @@ fn moments(x: &[f32], c: usize, m: usize, k: usize) -> (f32, f32) {
     (mean as f32, variance as f32)
 }
 
-fn f32_tensor(values: Vec<f32>, shape: Vec<usize>) -> FloatTensor<Flex> {
-    <Flex as FloatTensorOps<Flex>>::float_from_data(
-        TensorData::new(values, shape),
-        &Default::default(),
-    )
-}
-
-/// `[n, c, m]` (m values per plane) of an f32 CPU tensor, or `None` to fall back.
-fn layout(x: &FloatTensor<Flex>) -> Option<[usize; 3]> {
+/// The channels `c` and the values per plane `m` of an f32 CPU tensor `[n, c, ...]`, or
+/// `None` to fall back to the composed operation.
+fn layout(x: &FloatTensor<Flex>) -> Option<[usize; 2]> {
     let shape = x.shape();
     (x.dtype() == DType::F32 && shape.num_dims() >= 2).then(|| {
         let [n, c] = [shape[0], shape[1]];
-        [n, c, shape.num_elements() / (n * c).max(1)]
+        [c, shape.num_elements() / (n * c).max(1)]
     })
 }
 
 impl NormBackend for Flex {
     fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
-        let Some([_, c, m]) = layout(&x) else {
+        let Some([c, m]) = layout(&x) else {
             return composed::statistics::<Self>(x);
         };
         let x = x.to_contiguous();
@@ -99,32 +100,38 @@ impl NormBackend for Flex {
             .collect();
         let mut out: Vec<f32> = moments.iter().map(|m| m.0).collect();
         out.extend(moments.iter().map(|m| m.1));
-        f32_tensor(out, vec![2, c])
+        flex_tensor(out, vec![2, c])
     }
 
     fn norm_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
+        statistics: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
-        let Some([_, c, m]) = layout(&x) else {
-            return Self::batch_norm_train(x, gamma, beta, epsilon).output;
+        let Some([c, m]) = layout(&x) else {
+            let [mean, variance] = composed::split::<Self>(statistics);
+            return Self::batch_norm(x, gamma, beta, mean, variance, epsilon);
         };
         let shape = x.shape().to_vec();
-        let (x, gamma, beta) = (
+        let (x, gamma, beta, statistics) = (
             x.to_contiguous(),
             gamma.to_contiguous(),
             beta.to_contiguous(),
+            statistics.to_contiguous(),
         );
-        let (values, gamma, beta): (&[f32], &[f32], &[f32]) =
-            (x.storage(), gamma.storage(), beta.storage());
+        let (values, gamma, beta, statistics): (&[f32], &[f32], &[f32], &[f32]) = (
+            x.storage(),
+            gamma.storage(),
+            beta.storage(),
+            statistics.storage(),
+        );
+        let (mean, variance) = statistics.split_at(c);
         let affine: Vec<(f32, f32)> = (0..c)
-            .into_par_iter()
             .map(|k| {
-                let (mean, variance) = moments(values, c, m, k);
-                let scale = gamma[k] / (variance + epsilon as f32).sqrt();
-                (scale, beta[k] - mean * scale)
+                let scale = gamma[k] / (variance[k] + epsilon as f32).sqrt();
+                (scale, beta[k] - mean[k] * scale)
             })
             .collect();
         let mut out = vec![0.0f32; values.len()];
@@ -137,31 +144,37 @@ impl NormBackend for Flex {
                     .zip(x)
                     .for_each(|(y, &x)| *y = x * scale + shift);
             });
-        f32_tensor(out, shape)
+        flex_tensor(out, shape)
     }
 
     fn norm_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
+        statistics: FloatTensor<Self>,
         epsilon: f64,
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        let Some([_, c, m]) = layout(&x) else {
-            return composed::grads::<Self>(x, gamma, epsilon, grad);
+        let Some([c, m]) = layout(&x) else {
+            return composed::grads::<Self>(x, gamma, statistics, epsilon, grad);
         };
-        let (x, gamma, grad) = (
+        let (x, gamma, statistics, grad) = (
             x.to_contiguous(),
             gamma.to_contiguous(),
+            statistics.to_contiguous(),
             grad.to_contiguous(),
         );
-        let (values, gamma, dy): (&[f32], &[f32], &[f32]) =
-            (x.storage(), gamma.storage(), grad.storage());
+        let (values, gamma, statistics, dy): (&[f32], &[f32], &[f32], &[f32]) = (
+            x.storage(),
+            gamma.storage(),
+            statistics.storage(),
+            grad.storage(),
+        );
         let count = (values.len() / c) as f32;
         // Per channel: mean, 1 / std, sum(dy), sum(dy x_hat).
         let sums: Vec<[f32; 4]> = (0..c)
             .into_par_iter()
             .map(|k| {
-                let (mean, variance) = moments(values, c, m, k);
+                let (mean, variance) = (statistics[k], statistics[c + k]);
                 let inv_std = 1.0 / (variance + epsilon as f32).sqrt();
                 let (mut sum_dy, mut sum_dy_xhat) = (0f64, 0f64);
                 for (x, dy) in channel(values, c, m, k).zip(channel(dy, c, m, k)) {
@@ -192,7 +205,7 @@ impl NormBackend for Flex {
             parameters[k] = s[3];
             parameters[c + k] = s[2];
         }
-        f32_tensor(out, vec![values.len() + 2 * c])
+        flex_tensor(out, vec![values.len() + 2 * c])
     }
 }
 
@@ -215,15 +228,10 @@ mod composed {
         )
     }
 
-    pub fn grads<B: Backend>(
-        x: FloatTensor<B>,
-        gamma: FloatTensor<B>,
-        epsilon: f64,
-        grad: FloatTensor<B>,
-    ) -> FloatTensor<B> {
-        let statistics = statistics::<B>(x.clone());
-        let c = x.shape()[1];
-        let row = |i: usize| {
+    /// `[2, c]` statistics as the mean and the variance, `[c]` each.
+    pub fn split<B: Backend>(statistics: FloatTensor<B>) -> [FloatTensor<B>; 2] {
+        let c = statistics.shape()[1];
+        [0, 1].map(|i| {
             B::float_reshape(
                 B::float_slice(
                     statistics.clone(),
@@ -231,8 +239,18 @@ mod composed {
                 ),
                 [c].into(),
             )
-        };
-        let grads = B::batch_norm_train_backward(x, gamma, row(0), row(1), epsilon, grad);
+        })
+    }
+
+    pub fn grads<B: Backend>(
+        x: FloatTensor<B>,
+        gamma: FloatTensor<B>,
+        statistics: FloatTensor<B>,
+        epsilon: f64,
+        grad: FloatTensor<B>,
+    ) -> FloatTensor<B> {
+        let [mean, variance] = split::<B>(statistics);
+        let grads = B::batch_norm_train_backward(x, gamma, mean, variance, epsilon, grad);
         let flat = |t: FloatTensor<B>| {
             let n = t.shape().num_elements();
             B::float_reshape(t, [n].into())
@@ -277,14 +295,15 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
+        statistics: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
         #[derive(Debug)]
         struct NormTrain;
 
         impl<B: Backend + NormBackend> Backward<B, 3> for NormTrain {
-            /// The input and gamma, and epsilon.
-            type State = (NodeId, NodeId, f64);
+            /// The input and gamma, the batch statistics, and epsilon.
+            type State = (NodeId, NodeId, B::FloatTensorPrimitive, f64);
 
             fn backward(
                 self,
@@ -294,13 +313,13 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
             ) {
                 let [node_x, node_gamma, node_beta] = ops.parents;
                 let grad = grads.consume::<B>(&ops.node);
-                let (x_state, gamma_state, epsilon) = ops.state;
+                let (x_state, gamma_state, statistics, epsilon) = ops.state;
                 let x = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(x_state);
                 let gamma =
                     checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(gamma_state);
                 let shape = x.shape();
                 let (len, c) = (shape.num_elements(), shape[1]);
-                let all = B::norm_train_grads(x, gamma, epsilon, grad);
+                let all = B::norm_train_grads(x, gamma, statistics, epsilon, grad);
                 let part = |range: std::ops::Range<usize>| {
                     B::float_slice(all.clone(), &[Slice::from(range)])
                 };
@@ -324,18 +343,21 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
             OpsKind::Tracked(mut prep) => {
                 let x_state = prep.checkpoint(&x);
                 let gamma_state = prep.checkpoint(&gamma);
+                let statistics = statistics.into_primitive();
                 let output = B::norm_train(
                     x.into_primitive(),
                     gamma.into_primitive(),
                     beta.into_primitive(),
+                    statistics.clone(),
                     epsilon,
                 );
-                prep.finish((x_state, gamma_state, epsilon), output)
+                prep.finish((x_state, gamma_state, statistics, epsilon), output)
             }
             OpsKind::UnTracked(prep) => prep.finish(B::norm_train(
                 x.into_primitive(),
                 gamma.into_primitive(),
                 beta.into_primitive(),
+                statistics.into_primitive(),
                 epsilon,
             )),
         }
@@ -356,6 +378,7 @@ pub fn forward(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
         x.into_dispatch(),
         norm.gamma.val().into_dispatch(),
         norm.beta.val().into_dispatch(),
+        statistics.clone().into_dispatch(),
         norm.epsilon,
     ));
     let c = statistics.dims()[1];
@@ -373,4 +396,60 @@ pub fn forward(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
     norm.running_var
         .update(update(norm.running_var.value_sync(), variance));
     output
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::assert_close;
+
+    fn values(tensor: FloatTensor<Flex>) -> Vec<f32> {
+        tensor.into_data().try_to_vec::<f32>().unwrap()
+    }
+
+    #[test]
+    fn the_cpu_loops_equal_the_composed_batch_norm_and_its_gradients() {
+        let (n, c, h) = (3, 4, 5);
+        let wave = |len: usize, rate: f32, scale: f32| -> Vec<f32> {
+            (0..len)
+                .map(|i| (i as f32 * rate).sin() * scale + 0.3)
+                .collect()
+        };
+        let x = || flex_tensor(wave(n * c * h * h, 0.37, 2.0), [n, c, h, h]);
+        let gamma = || flex_tensor(wave(c, 0.9, 1.0), [c]);
+        let beta = || flex_tensor(wave(c, 1.3, 1.0), [c]);
+        let grad = || flex_tensor(wave(n * c * h * h, 0.11, 1.0), [n, c, h, h]);
+        let statistics = || Flex::norm_statistics(x());
+        assert_close(
+            &values(statistics()),
+            &values(composed::statistics::<Flex>(x())),
+            1e-5,
+            "statistics",
+        );
+        let [mean, variance] = composed::split::<Flex>(statistics());
+        assert_close(
+            &values(Flex::norm_train(x(), gamma(), beta(), statistics(), 1e-5)),
+            &values(Flex::batch_norm(x(), gamma(), beta(), mean, variance, 1e-5)),
+            1e-5,
+            "output",
+        );
+        assert_close(
+            &values(Flex::norm_train_grads(
+                x(),
+                gamma(),
+                statistics(),
+                1e-5,
+                grad(),
+            )),
+            &values(composed::grads::<Flex>(
+                x(),
+                gamma(),
+                statistics(),
+                1e-5,
+                grad(),
+            )),
+            1e-4,
+            "gradients",
+        );
+    }
 }

@@ -173,6 +173,26 @@ pub(crate) struct View {
     pub col: isize,
 }
 
+impl View {
+    /// Rows of contiguous values, `row` apart.
+    pub fn rows(ptr: *const f32, row: usize) -> Self {
+        Self {
+            ptr,
+            row: row as isize,
+            col: 1,
+        }
+    }
+
+    /// The transpose of [`View::rows`]: columns of contiguous values, `col` apart.
+    pub fn columns(ptr: *const f32, col: usize) -> Self {
+        Self {
+            ptr,
+            row: 1,
+            col: col as isize,
+        }
+    }
+}
+
 /// `dst = lhs x rhs` (`m x k` times `k x n`), or `dst += lhs x rhs` when `accumulate`, on this
 /// thread (the callers spread their work over the cores themselves).
 ///
@@ -216,9 +236,21 @@ pub(crate) unsafe fn multiply(
 /// a core's cache beside the weights and the output.
 const BAND_VALUES: usize = 24 * 1024;
 
-/// Output rows per band when `depth` unfolded rows of `side` pixels each are in play.
-pub(crate) fn band_rows(depth: usize, side: usize) -> usize {
-    (BAND_VALUES / (depth * side)).clamp(1, side)
+/// The output rows, a band at a time, when `depth` unfolded rows of `side` pixels each are in
+/// play.
+pub(crate) fn bands(depth: usize, side: usize) -> impl Iterator<Item = Range<usize>> {
+    let rows = (BAND_VALUES / (depth * side)).clamp(1, side);
+    (0..side)
+        .step_by(rows)
+        .map(move |first| first..(first + rows).min(side))
+}
+
+/// A CPU tensor of `values`.
+pub(crate) fn flex_tensor(values: Vec<f32>, shape: impl Into<Shape>) -> FloatTensor<Flex> {
+    <Flex as FloatTensorOps<Flex>>::float_from_data(
+        TensorData::new(values, shape),
+        &Default::default(),
+    )
 }
 
 /// The convolution as a backend operation: forward, and the two gradients its backward needs.
@@ -385,25 +417,13 @@ thread_local! {
     static BAND: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// A CPU tensor's values, contiguous.
-fn f32_values(tensor: &FloatTensor<Flex>) -> FloatTensor<Flex> {
-    tensor.to_contiguous()
-}
-
-fn flex_tensor(values: Vec<f32>, shape: [usize; 4]) -> FloatTensor<Flex> {
-    <Flex as FloatTensorOps<Flex>>::float_from_data(
-        TensorData::new(values, shape),
-        &Default::default(),
-    )
-}
-
 impl ConvBackend for Flex {
     fn conv_taps(x: FloatTensor<Self>, weight: FloatTensor<Self>, taps: Taps) -> FloatTensor<Self> {
         let ([n, c, h, w], [o, ..]) = (x.shape().dims(), weight.shape().dims::<4>());
         if x.dtype() != DType::F32 || weight.dtype() != DType::F32 || h != w {
             return composed::conv::<Self>(x, weight, taps);
         }
-        let (x, weight) = (f32_values(&x), f32_values(&weight));
+        let (x, weight) = (x.to_contiguous(), weight.to_contiguous());
         let (input, weights): (&[f32], &[f32]) = (x.storage(), weight.storage());
         let (side, depth) = (taps.out_side(h), c * taps.per_channel());
         let pixels = side * side;
@@ -412,10 +432,8 @@ impl ConvBackend for Flex {
             .zip(input.par_chunks(c * h * h))
             .for_each(|(y, item)| {
                 BAND.with_borrow_mut(|band| {
-                    let rows_per_band = band_rows(depth, side);
-                    for first in (0..side).step_by(rows_per_band) {
-                        let rows = first..(first + rows_per_band).min(side);
-                        let cols = rows.len() * side;
+                    for rows in bands(depth, side) {
+                        let (first, cols) = (rows.start, rows.len() * side);
                         unfold_item(item, h, &taps, rows, band);
                         // SAFETY: `y[.., first * side..]` is `o x cols` with row stride
                         // `pixels`, `weights` `o x depth`, `band` `depth x cols`.
@@ -424,16 +442,8 @@ impl ConvBackend for Flex {
                                 [o, cols, depth],
                                 (y.as_mut_ptr().add(first * side), pixels as isize, 1),
                                 false,
-                                View {
-                                    ptr: weights.as_ptr(),
-                                    row: depth as isize,
-                                    col: 1,
-                                },
-                                View {
-                                    ptr: band.as_ptr(),
-                                    row: cols as isize,
-                                    col: 1,
-                                },
+                                View::rows(weights.as_ptr(), depth),
+                                View::rows(band.as_ptr(), cols),
                             );
                         }
                     }
@@ -452,7 +462,7 @@ impl ConvBackend for Flex {
         if grad.dtype() != DType::F32 || weight.dtype() != DType::F32 {
             return composed::x_grad::<Self>(grad, weight, taps, h);
         }
-        let (grad, weight) = (f32_values(&grad), f32_values(&weight));
+        let (grad, weight) = (grad.to_contiguous(), weight.to_contiguous());
         let (grads, weights): (&[f32], &[f32]) = (grad.storage(), weight.storage());
         let (pixels, depth, per_channel) =
             (side * side, c * taps.per_channel(), taps.per_channel());
@@ -462,10 +472,8 @@ impl ConvBackend for Flex {
             .zip(grads.par_chunks(o * pixels))
             .for_each(|(item, dy)| {
                 BAND.with_borrow_mut(|band| {
-                    let rows_per_band = band_rows(depth, side);
-                    for first in (0..side).step_by(rows_per_band) {
-                        let rows = first..(first + rows_per_band).min(side);
-                        let cols = rows.len() * side;
+                    for rows in bands(depth, side) {
+                        let (first, cols) = (rows.start, rows.len() * side);
                         band.resize(depth * cols, 0.0);
                         // SAFETY: `band` is `depth x cols`; the weights' transpose is `depth x
                         // o` (row stride 1, column stride `depth`); `dy[.., first * side..]`
@@ -475,16 +483,8 @@ impl ConvBackend for Flex {
                                 [depth, cols, o],
                                 (band.as_mut_ptr(), cols as isize, 1),
                                 false,
-                                View {
-                                    ptr: weights.as_ptr(),
-                                    row: 1,
-                                    col: depth as isize,
-                                },
-                                View {
-                                    ptr: dy.as_ptr().add(first * side),
-                                    row: pixels as isize,
-                                    col: 1,
-                                },
+                                View::columns(weights.as_ptr(), depth),
+                                View::rows(dy.as_ptr().add(first * side), pixels),
                             );
                         }
                         for (plane, columns) in item
@@ -508,7 +508,7 @@ impl ConvBackend for Flex {
         if x.dtype() != DType::F32 || grad.dtype() != DType::F32 || h != w {
             return composed::weight_grad::<Self>(x, grad, taps);
         }
-        let (x, grad) = (f32_values(&x), f32_values(&grad));
+        let (x, grad) = (x.to_contiguous(), grad.to_contiguous());
         let (input, grads): (&[f32], &[f32]) = (x.storage(), grad.storage());
         let (pixels, depth) = (side * side, c * taps.per_channel());
         let k = taps.kernel;
@@ -519,10 +519,8 @@ impl ConvBackend for Flex {
                 || vec![0.0f32; o * depth],
                 |mut sum, (item, dy)| {
                     BAND.with_borrow_mut(|band| {
-                        let rows_per_band = band_rows(depth, side);
-                        for first in (0..side).step_by(rows_per_band) {
-                            let rows = first..(first + rows_per_band).min(side);
-                            let cols = rows.len() * side;
+                        for rows in bands(depth, side) {
+                            let (first, cols) = (rows.start, rows.len() * side);
                             unfold_item(item, h, &taps, rows, band);
                             // SAFETY: `sum` is `o x depth`; `dy[.., first * side..]` is `o x
                             // cols` with row stride `pixels`; the band's transpose is `cols x
@@ -532,16 +530,8 @@ impl ConvBackend for Flex {
                                     [o, depth, cols],
                                     (sum.as_mut_ptr(), depth as isize, 1),
                                     true,
-                                    View {
-                                        ptr: dy.as_ptr().add(first * side),
-                                        row: pixels as isize,
-                                        col: 1,
-                                    },
-                                    View {
-                                        ptr: band.as_ptr(),
-                                        row: 1,
-                                        col: cols as isize,
-                                    },
+                                    View::rows(dy.as_ptr().add(first * side), pixels),
+                                    View::columns(band.as_ptr(), cols),
                                 );
                             }
                         }
@@ -647,6 +637,7 @@ pub fn conv(x: Tensor<4>, weight: Tensor<4>, taps: Taps) -> Tensor<4> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::assert_close;
 
     fn values(tensor: FloatTensor<Flex>) -> Vec<f32> {
         tensor.into_data().try_to_vec::<f32>().unwrap()
@@ -654,19 +645,6 @@ mod tests {
 
     fn wave(len: usize, rate: f32) -> Vec<f32> {
         (0..len).map(|i| (i as f32 * rate).sin()).collect()
-    }
-
-    fn assert_close(ours: Vec<f32>, composed: Vec<f32>, what: &str) {
-        assert_eq!(ours.len(), composed.len(), "{what}");
-        let scale = composed.iter().fold(0f32, |m, v| m.max(v.abs()));
-        let worst = ours
-            .iter()
-            .zip(&composed)
-            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
-        assert!(
-            scale > 0.0 && worst <= 1e-5 * scale,
-            "{what}: {worst} of {scale}"
-        );
     }
 
     #[test]
@@ -687,18 +665,21 @@ mod tests {
             let grad = || flex_tensor(wave(n * o * side * side, 0.11), [n, o, side, side]);
             let what = |part: &str| format!("{part}, stride {stride}, dilation {dilation}");
             assert_close(
-                values(Flex::conv_taps(x(), weight(), taps)),
-                values(composed::conv::<Flex>(x(), weight(), taps)),
+                &values(Flex::conv_taps(x(), weight(), taps)),
+                &values(composed::conv::<Flex>(x(), weight(), taps)),
+                1e-5,
                 &what("output"),
             );
             assert_close(
-                values(Flex::conv_taps_x_grad(grad(), weight(), taps, h)),
-                values(composed::x_grad::<Flex>(grad(), weight(), taps, h)),
+                &values(Flex::conv_taps_x_grad(grad(), weight(), taps, h)),
+                &values(composed::x_grad::<Flex>(grad(), weight(), taps, h)),
+                1e-5,
                 &what("input gradient"),
             );
             assert_close(
-                values(Flex::conv_taps_weight_grad(x(), grad(), taps)),
-                values(composed::weight_grad::<Flex>(x(), grad(), taps)),
+                &values(Flex::conv_taps_weight_grad(x(), grad(), taps)),
+                &values(composed::weight_grad::<Flex>(x(), grad(), taps)),
+                1e-5,
                 &what("weight gradient"),
             );
         }

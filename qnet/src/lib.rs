@@ -32,3 +32,22 @@ pub use input::NetInput;
 pub use layers::NetLayers;
 pub use net::PrimitiveNet;
 pub use qnets::QNets;
+
+/// What the unit tests share.
+#[cfg(test)]
+mod testing {
+    /// Asserts `ours` equals `reference` within `tolerance` of the reference's largest
+    /// magnitude (which must not be zero, so an all-zero pair cannot pass).
+    pub fn assert_close(ours: &[f32], reference: &[f32], tolerance: f32, what: &str) {
+        assert_eq!(ours.len(), reference.len(), "{what}");
+        let scale = reference.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let worst = ours
+            .iter()
+            .zip(reference)
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(
+            scale > 0.0 && worst <= tolerance * scale,
+            "{what} differs by {worst} of {scale}"
+        );
+    }
+}

@@ -59,7 +59,7 @@ fn convolve(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 
 /// `conv` (square kernel, stride and dilation, padded to keep the size: the net's every
 /// convolution) as one matrix product of its weights with the input unfolded
-/// ([`crate::unfold`]). Forward it equals burn's `conv2d`; backward, its weight gradient is
+/// ([`crate::gemm_conv`]). Forward it equals burn's `conv2d`; backward, its weight gradient is
 /// one GEMM over the batch's pixels, where burn's generic `conv2d_weight_backward` runs a
 /// convolution whose kernel is the whole output gradient, several times slower at a training
 /// step's one or two items, and its input gradient the unfolding's own fold.
@@ -190,6 +190,7 @@ mod tests {
     use burn::tensor::Distribution;
 
     use super::*;
+    use crate::testing::assert_close;
 
     /// `conv`'s output at `x` and the gradients of `sum(y^2) / 2` (so each output pixel's
     /// gradient is its own value): input, weight, bias.
@@ -229,13 +230,8 @@ mod tests {
                 .iter()
                 .zip(ours.iter().zip(&burns))
             {
-                assert_eq!(a.len(), b.len(), "{what}");
-                let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
-                let worst = a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
-                assert!(
-                    scale > 0.0 && worst <= 1e-5 * scale,
-                    "stride {stride}, dilation {dilation}: {what} differs by {worst} of {scale}"
-                );
+                let what = format!("stride {stride}, dilation {dilation}: {what}");
+                assert_close(a, b, 1e-5, &what);
             }
         }
     }
@@ -277,12 +273,7 @@ mod tests {
             "running var",
         ];
         for ((what, a), b) in parts.iter().zip(&ours).zip(&burns) {
-            let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
-            let worst = a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
-            assert!(
-                scale > 0.0 && worst <= 1e-4 * scale,
-                "{what}: {worst} of {scale}"
-            );
+            assert_close(a, b, 1e-4, what);
         }
     }
 }

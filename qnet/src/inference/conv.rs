@@ -7,7 +7,7 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::prelude::*;
 
 use crate::error::QNetError;
-use crate::gemm_conv::{Taps, View, band_rows, multiply, unfold_item};
+use crate::gemm_conv::{Taps, View, bands, multiply, unfold_item};
 
 /// A square convolution over one image `[channels_in, h, h]`, row-major, written to
 /// `[channels_out, h_out, h_out]`.
@@ -140,10 +140,8 @@ impl FoldedConv {
         // A band of output rows at a time, so its unfolded columns stay in the cache
         // between being written and being multiplied.
         let depth = self.channels_in * self.taps.per_channel();
-        let band = band_rows(depth, side);
-        for first in (0..side).step_by(band) {
-            let rows = first..(first + band).min(side);
-            let pixels = rows.len() * side;
+        for rows in bands(depth, side) {
+            let (first, pixels) = (rows.start, rows.len() * side);
             unfold_item(input, h, &self.taps, rows, &mut scratch.columns);
             self.multiply(&scratch.columns, pixels, out, first * side, n);
         }
@@ -163,16 +161,8 @@ impl FoldedConv {
                 [self.channels_out, pixels, depth],
                 (out.as_mut_ptr().add(at), n as isize, 1),
                 false,
-                View {
-                    ptr: self.weights.as_ptr(),
-                    row: depth as isize,
-                    col: 1,
-                },
-                View {
-                    ptr: columns.as_ptr(),
-                    row: pixels as isize,
-                    col: 1,
-                },
+                View::rows(self.weights.as_ptr(), depth),
+                View::rows(columns.as_ptr(), pixels),
             );
         }
         for (plane, &b) in out.chunks_exact_mut(n).zip(&self.bias) {
