@@ -512,40 +512,38 @@ impl ConvBackend for Flex {
         let (input, grads): (&[f32], &[f32]) = (x.storage(), grad.storage());
         let (pixels, depth) = (side * side, c * taps.per_channel());
         let k = taps.kernel;
-        let summed = input
+        // Each item's gradient apart, then summed in item order: a sum over however rayon
+        // split the items would round differently from run to run.
+        let per_item: Vec<Vec<f32>> = input
             .par_chunks(c * h * h)
             .zip(grads.par_chunks(o * pixels))
-            .fold(
-                || vec![0.0f32; o * depth],
-                |mut sum, (item, dy)| {
-                    BAND.with_borrow_mut(|band| {
-                        for rows in bands(depth, side) {
-                            let (first, cols) = (rows.start, rows.len() * side);
-                            unfold_item(item, h, &taps, rows, band);
-                            // SAFETY: `sum` is `o x depth`; `dy[.., first * side..]` is `o x
-                            // cols` with row stride `pixels`; the band's transpose is `cols x
-                            // depth` (row stride 1, column stride `cols`).
-                            unsafe {
-                                multiply(
-                                    [o, depth, cols],
-                                    (sum.as_mut_ptr(), depth as isize, 1),
-                                    true,
-                                    View::rows(dy.as_ptr().add(first * side), pixels),
-                                    View::columns(band.as_ptr(), cols),
-                                );
-                            }
+            .map(|(item, dy)| {
+                let mut sum = vec![0.0f32; o * depth];
+                BAND.with_borrow_mut(|band| {
+                    for rows in bands(depth, side) {
+                        let (first, cols) = (rows.start, rows.len() * side);
+                        unfold_item(item, h, &taps, rows, band);
+                        // SAFETY: `sum` is `o x depth`; `dy[.., first * side..]` is `o x cols`
+                        // with row stride `pixels`; the band's transpose is `cols x depth` (row
+                        // stride 1, column stride `cols`).
+                        unsafe {
+                            multiply(
+                                [o, depth, cols],
+                                (sum.as_mut_ptr(), depth as isize, 1),
+                                true,
+                                View::rows(dy.as_ptr().add(first * side), pixels),
+                                View::columns(band.as_ptr(), cols),
+                            );
                         }
-                    });
-                    sum
-                },
-            )
-            .reduce(
-                || vec![0.0f32; o * depth],
-                |mut a, b| {
-                    a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
-                    a
-                },
-            );
+                    }
+                });
+                sum
+            })
+            .collect();
+        let mut summed = vec![0.0f32; o * depth];
+        for item in &per_item {
+            summed.iter_mut().zip(item).for_each(|(s, v)| *s += v);
+        }
         flex_tensor(summed, [o, c, k, k])
     }
 }
