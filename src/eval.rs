@@ -93,8 +93,8 @@ struct EvalReport {
     updates: u64,
     runs_per_case: usize,
     seed: u64,
-    mode: actor::Mode,
-    rule: actor::Rule,
+    mode: policy::Mode,
+    rule: policy::Rule,
     q_star: f32,
     /// `[policy] grasp_margin`, metres.
     grasp_margin: f32,
@@ -106,9 +106,9 @@ struct EvalReport {
 
 pub fn run(args: &EvalArgs) -> Result<()> {
     let mode = if args.grasp_only {
-        actor::Mode::GraspOnly
+        policy::Mode::GraspOnly
     } else {
-        actor::Mode::PushGrasp
+        policy::Mode::PushGrasp
     };
     let mut set = toml::Table::new();
     for setting in &args.set {
@@ -272,7 +272,7 @@ pub fn load_agent(
     checkpoint: &Path,
     config: Option<&Path>,
     set: &toml::Table,
-    mode: actor::Mode,
+    mode: policy::Mode,
 ) -> Result<(RunConfig, Agent, u64)> {
     let config_path = match config {
         Some(path) => path.to_path_buf(),

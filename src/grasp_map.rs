@@ -125,7 +125,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
                 checkpoint,
                 args.config.as_deref(),
                 &toml::Table::new(),
-                actor::Mode::GraspOnly,
+                policy::Mode::GraspOnly,
             )?;
             (config.sim, Some(agent))
         }
@@ -204,7 +204,7 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
         let inside = MARGINS
             .iter()
             .map(|&margin| {
-                let region = actor::grasp_region(&maps, goal, margin);
+                let region = policy::grasp_region(&maps, goal, margin);
                 let kept: Vec<usize> = (0..candidates.len())
                     .filter(|&i| region[candidates[i].row * maps.side() + candidates[i].col])
                     .collect();

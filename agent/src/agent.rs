@@ -1,7 +1,7 @@
 //! [`Agent`]: nets, their rotation geometry, the policy settings and the mode, turning an
 //! observation and a goal into a decision.
 
-use actor::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
+use policy::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
 use qnet::{ActingNets, Geometry, NetInput, QNetConfig, QNetError, QNets};
 use rand_chacha::ChaCha8Rng;
 use sim::{Heightmaps, ObjectId, Primitive};
@@ -34,7 +34,7 @@ pub enum AgentError {
     #[error(transparent)]
     Net(#[from] QNetError),
     #[error(transparent)]
-    Policy(#[from] actor::ActorError),
+    Policy(#[from] policy::PolicyError),
 }
 
 impl Agent {
@@ -94,7 +94,7 @@ impl Agent {
             push: push.as_ref(),
             pushes_so_far,
         };
-        let decision = actor::choose(&self.policy, self.mode, &policy_input, epsilon, rng)?;
+        let decision = policy::choose(&self.policy, self.mode, &policy_input, epsilon, rng)?;
         Ok(Choice {
             decision,
             grasp,

@@ -1,7 +1,7 @@
 //! An agent with an ensemble acts on the mean of its nets' Q maps.
 
-use actor::{Mode, PolicyConfig};
 use agent::Agent;
+use policy::{Mode, PolicyConfig};
 use qnet::{NetInput, QNetConfig};
 use sim::{Camera, Primitive, SimConfig, Tabletop};
 

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use actor::{Mode, PolicyConfig};
 use agent::{Agent, EvalConfig, Scene, evaluate};
+use policy::{Mode, PolicyConfig};
 use qnet::QNetConfig;
 use sim::{ANY_OBJECT, Arrangement, SimConfig};
 

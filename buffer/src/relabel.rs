@@ -16,7 +16,7 @@
 
 use std::collections::BTreeMap;
 
-use actor::PushReward;
+use policy::PushReward;
 use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
 use sim::{ObjectId, Primitive};

@@ -1,7 +1,7 @@
 //! The buffer as one value: the prioritised replay, the rate limiter and the episode
 //! assembler, kept consistent with each other (what the buffer role runs and snapshots).
 
-use actor::PushReward;
+use policy::PushReward;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use sim::{ConfigError, ObjectId, Primitive};

@@ -25,7 +25,7 @@ pub struct Transition {
     /// The object the action grasped, if it was a grasp that held one.
     pub grasped: Option<ObjectId>,
     /// The actor's bootstrap value of the next state, `None` when the scene ended with this
-    /// step; the learner turns reward and next value into a label (`learner::label`).
+    /// step; the learner turns reward and next value into a label (`policy::label`).
     pub next_value: Option<f32>,
 }
 

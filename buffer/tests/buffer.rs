@@ -3,11 +3,11 @@
 
 use std::path::PathBuf;
 
-use actor::PushReward;
 use buffer::{
     AssembleError, BufferConfig, EpisodeAssembler, Key, PrioritizedReplay, ReplayBuffer,
     ReplayError, Serving, SnapshotErrorKind, Transition,
 };
+use policy::PushReward;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sim::{Action, Heightmaps, ObjectId, PixelGrid, Primitive};

@@ -7,7 +7,6 @@ pub mod averaging;
 pub mod checkpoint;
 pub mod config;
 pub mod error;
-pub mod label;
 pub mod trainer;
 
 pub use checkpoint::{Checkpoint, Manifest, SavedNets};

@@ -22,7 +22,7 @@ pub struct Sample {
     /// The observation the action was chosen on, with the sample's goal.
     pub input: NetInput,
     pub action: Action,
-    /// The bootstrap label (see [`crate::label`]).
+    /// The bootstrap label (`policy::label`).
     pub label: f32,
     /// The replay's importance-sampling weight (1 without prioritisation).
     pub weight: f32,

@@ -4,7 +4,6 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use learner::checkpoint::config_hash;
-use learner::label::{grasp_label, push_label};
 use learner::{
     Checkpoint, LearningConfig, LrDecay, Manifest, Sample, SavedNets, TrainedNet, Trainer,
     executed_pixel_loss,
@@ -89,40 +88,6 @@ fn the_loss_gives_gradient_to_the_executed_pixels_only() {
     // second label is within 1 of any random value in [0, 1)).
     let want = 0.5 * (values[256 + 10 * 16 + 1] - 0.2);
     assert!((grad[256 + 10 * 16 + 1] - want).abs() < 1e-5);
-}
-
-#[test]
-fn labels_converge_to_the_fixed_point_q_star_sits_below() {
-    let gamma = LearningConfig::default().gamma;
-    let mut q = 0.0;
-    for _ in 0..40 {
-        q = grasp_label(1.0, true, Some(q), gamma);
-    }
-    assert!((q - 2.0).abs() < 1e-4 && q > 1.8, "{q}");
-    assert_eq!(
-        grasp_label(0.0, false, Some(1.9), gamma),
-        0.0,
-        "no future after a failure"
-    );
-    assert_eq!(
-        grasp_label(1.0, true, None, gamma),
-        1.0,
-        "no future after the last object"
-    );
-    assert_eq!(push_label(0.5, Some(1.0), gamma), 1.0);
-    assert_eq!(push_label(-0.5, None, gamma), -0.5);
-}
-
-#[test]
-fn bootstrap_values_are_clamped_to_what_a_state_can_be_worth() {
-    let gamma = LearningConfig::default().gamma;
-    // An overestimated next value counts as the fixed point 1 / (1 - gamma) = 2.
-    assert_eq!(grasp_label(1.0, true, Some(2.9), gamma), 2.0);
-    assert_eq!(grasp_label(1.0, true, Some(-0.3), gamma), 1.0);
-    assert_eq!(push_label(0.0, Some(2.9), gamma), 1.0);
-    // A push's next state may be worth less than nothing (pushes that change nothing).
-    assert_eq!(push_label(0.0, Some(-0.6), gamma), -0.3);
-    assert_eq!(push_label(0.0, Some(-5.0), gamma), -0.5);
 }
 
 #[test]

@@ -4,7 +4,7 @@
 use burn::prelude::*;
 use sim::Primitive;
 
-use actor::QMaps;
+use policy::QMaps;
 
 use crate::error::QNetError;
 use crate::geometry::Geometry;

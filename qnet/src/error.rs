@@ -9,5 +9,5 @@ pub enum QNetError {
     #[error("the input is {got} x {got} but the geometry is for {want} x {want}")]
     Side { got: usize, want: usize },
     #[error(transparent)]
-    QMaps(#[from] actor::ActorError),
+    QMaps(#[from] policy::PolicyError),
 }

@@ -11,7 +11,7 @@ use burn::tensor::ops::{
 };
 use sim::{Primitive, ROTATIONS};
 
-use actor::QMaps;
+use policy::QMaps;
 
 use crate::config::QNetConfig;
 use crate::error::QNetError;

@@ -308,7 +308,7 @@ fn charts(runs: &[Run], reports: &[RunReport], lines: &[Line]) -> Vec<plots::Cha
     let q_star = runs
         .iter()
         .find_map(|r| r.config.as_ref())
-        .map_or(actor::PolicyConfig::default().q_star, |c| c.policy.q_star);
+        .map_or(policy::PolicyConfig::default().q_star, |c| c.policy.q_star);
     let mut primitives: Vec<&str> = reports
         .iter()
         .flat_map(|r| r.loss.iter().map(|(p, _)| p.as_str()))

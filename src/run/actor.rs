@@ -6,12 +6,12 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
-use actor::{Decision, PushReward, QMaps, grasp_reward, trial_grasps};
 use agent::{Agent, Choice};
 use anyhow::{Context, Result};
 use buffer::Transition;
-use learner::label::{grasp_label, push_label};
 use mcaplog::RunLog;
+use policy::{Decision, PushReward, QMaps, grasp_reward, trial_grasps};
+use policy::{grasp_label, push_label};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};

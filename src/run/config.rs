@@ -45,11 +45,11 @@ pub struct RunConfig {
     #[serde(default)]
     pub sim: SimConfig,
     #[serde(default)]
-    pub policy: actor::PolicyConfig,
+    pub policy: policy::PolicyConfig,
     /// What a push earns: "dense" (the paper's, judged by the grasp net), "change" (VPG's)
     /// or "none" (the ablation without a push reward).
     #[serde(default)]
-    pub push_reward: actor::PushReward,
+    pub push_reward: policy::PushReward,
     /// Ape-X exploration instead of the policy's decaying schedule: actor i of N explores
     /// with a fixed epsilon^(1 + alpha i / (N - 1)).
     #[serde(default)]
@@ -251,11 +251,11 @@ impl RunConfig {
     }
 
     /// The policy's mode in this stage.
-    pub fn mode(&self) -> actor::Mode {
+    pub fn mode(&self) -> policy::Mode {
         if self.stage == 1 {
-            actor::Mode::GraspOnly
+            policy::Mode::GraspOnly
         } else {
-            actor::Mode::PushGrasp
+            policy::Mode::PushGrasp
         }
     }
 
@@ -397,11 +397,11 @@ mod tests {
     #[test]
     fn the_shipped_stage_configs_are_valid_and_train_their_stage() {
         for (stage, mode, nets) in [
-            (1, actor::Mode::GraspOnly, &[TrainedNet::Grasp][..]),
-            (2, actor::Mode::PushGrasp, &[TrainedNet::Push][..]),
+            (1, policy::Mode::GraspOnly, &[TrainedNet::Grasp][..]),
+            (2, policy::Mode::PushGrasp, &[TrainedNet::Push][..]),
             (
                 3,
-                actor::Mode::PushGrasp,
+                policy::Mode::PushGrasp,
                 &[TrainedNet::Grasp, TrainedNet::Push][..],
             ),
         ] {

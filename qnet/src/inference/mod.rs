@@ -18,7 +18,7 @@ use burn::nn::BatchNorm;
 use rayon::prelude::*;
 use sim::{Primitive, ROTATIONS};
 
-use actor::QMaps;
+use policy::QMaps;
 
 use crate::error::QNetError;
 use crate::geometry::Geometry;

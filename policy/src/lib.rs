@@ -4,14 +4,17 @@
 //! dependency: the actor turns an observation and the push and grasp Q maps into an action
 //! with the paper's hierarchical rule (grasp once the goal's grasp Q exceeds Q*, else push, at
 //! most five pushes) under epsilon-greedy exploration, and scores what happened with the
-//! paper's grasp and push rewards.
+//! paper's grasp and push rewards, and turns a step's reward and next value into the label
+//! the learner trains towards.
 
 pub mod error;
+pub mod label;
 pub mod policy;
 pub mod qmaps;
 pub mod reward;
 
-pub use error::ActorError;
+pub use error::PolicyError;
+pub use label::{grasp_label, push_label};
 pub use policy::{
     Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
     grasp_region, trial_grasps, valid_push_starts,

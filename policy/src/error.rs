@@ -4,7 +4,7 @@ use sim::Primitive;
 
 /// What can go wrong between Q maps and a decision.
 #[derive(Debug, thiserror::Error)]
-pub enum ActorError {
+pub enum PolicyError {
     /// Q values whose number is not rotations x side x side.
     #[error(
         "Q maps hold {got} values, but {rotations} rotations of {side} x {side} need {expected}"

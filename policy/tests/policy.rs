@@ -7,8 +7,8 @@ use common::cube;
 use sim::workspace::CENTRE;
 use std::collections::HashSet;
 
-use actor::{
-    ActorError, Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, QMaps, Reason,
+use policy::{
+    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyError, PolicyInput, QMaps, Reason,
     Rule, choose, grasp_region, trial_grasps, valid_push_starts,
 };
 use rand::{RngExt, SeedableRng};
@@ -548,7 +548,7 @@ fn mismatched_maps_nan_maps_and_bad_epsilons_are_errors() {
         (&eight, None, Primitive::Grasp),
     ] {
         match try_choose(g, p, 0.0) {
-            Err(ActorError::QMapsShape { primitive, .. }) => assert_eq!(primitive, want),
+            Err(PolicyError::QMapsShape { primitive, .. }) => assert_eq!(primitive, want),
             other => panic!("{other:?}"),
         }
     }
@@ -556,17 +556,17 @@ fn mismatched_maps_nan_maps_and_bad_epsilons_are_errors() {
     let nan = maps(&f.obs, f32::NAN, &[]);
     assert!(matches!(
         try_choose(&nan, Some(&f.push), 0.0),
-        Err(ActorError::NoQValue(Primitive::Grasp))
+        Err(PolicyError::NoQValue(Primitive::Grasp))
     ));
     // NaN push Q is reported even when the push would have been explored.
     assert!(matches!(
         try_choose(&grasp, Some(&nan), 1.0),
-        Err(ActorError::NoQValue(Primitive::Push))
+        Err(PolicyError::NoQValue(Primitive::Push))
     ));
     for epsilon in [-0.1, 1.5, f32::NAN] {
         assert!(matches!(
             try_choose(&grasp, Some(&f.push), epsilon),
-            Err(ActorError::Epsilon(_))
+            Err(PolicyError::Epsilon(_))
         ));
     }
 }

@@ -1,7 +1,7 @@
 //! One primitive's Q values for every rotation, as the networks hand them over: plain `f32`s
 //! laid out [rotation][row][col] over the heightmap.
 
-use crate::error::ActorError;
+use crate::error::PolicyError;
 
 /// One primitive's Q maps: `rotations` maps of `side x side`, row-major, rotation-major.
 /// Map k scores the action at angle k x 22.5 degrees (the networks rotate back before this).
@@ -15,10 +15,10 @@ pub struct QMaps {
 impl QMaps {
     /// Wraps `values` laid out [rotation][row][col]; their number must be
     /// `rotations * side * side`.
-    pub fn new(rotations: u8, side: usize, values: Vec<f32>) -> Result<Self, ActorError> {
+    pub fn new(rotations: u8, side: usize, values: Vec<f32>) -> Result<Self, PolicyError> {
         let expected = rotations as usize * side * side;
         if values.len() != expected {
-            return Err(ActorError::QMapsLength {
+            return Err(PolicyError::QMapsLength {
                 rotations,
                 side,
                 expected,

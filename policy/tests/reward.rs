@@ -2,8 +2,8 @@
 
 mod common;
 
-use actor::{PUSH_REWARD, Q_IMPROVEMENT, grasp_reward, push_reward};
 use common::cube;
+use policy::{PUSH_REWARD, Q_IMPROVEMENT, grasp_reward, push_reward};
 use sim::measure::{ChangeReport, detect_change};
 use sim::{Camera, SimConfig, Tabletop};
 

@@ -1,6 +1,6 @@
 //! QMaps: the [rotation][row][col] layout, and the masked argmax the policy builds on.
 
-use actor::{ActorError, QMaps};
+use policy::{PolicyError, QMaps};
 
 /// Two rotations of 3 x 3 whose values are their own flat index.
 fn counting() -> QMaps {
@@ -11,7 +11,7 @@ fn counting() -> QMaps {
 fn the_constructor_checks_the_length() {
     for len in [17, 19, 0] {
         match QMaps::new(2, 3, vec![0.0; len]) {
-            Err(ActorError::QMapsLength { expected, got, .. }) => {
+            Err(PolicyError::QMapsLength { expected, got, .. }) => {
                 assert_eq!((expected, got), (18, len));
             }
             other => panic!("{len} values: {other:?}"),

@@ -9,7 +9,7 @@ use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
 use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
-use crate::error::ActorError;
+use crate::error::PolicyError;
 use crate::qmaps::QMaps;
 
 /// A push may only start where the surface is lower than this (metres): "pushes may not
@@ -261,9 +261,9 @@ pub fn choose(
     input: &PolicyInput,
     epsilon: f32,
     rng: &mut impl Rng,
-) -> Result<Decision, ActorError> {
+) -> Result<Decision, PolicyError> {
     if !(0.0..=1.0).contains(&epsilon) {
-        return Err(ActorError::Epsilon(epsilon));
+        return Err(PolicyError::Epsilon(epsilon));
     }
     let obs = input.obs;
     check_shape(Primitive::Grasp, input.grasp, obs)?;
@@ -275,14 +275,14 @@ pub fn choose(
     let best_grasp = input
         .grasp
         .best_where(&region)
-        .ok_or(ActorError::NoQValue(Primitive::Grasp))?;
+        .ok_or(PolicyError::NoQValue(Primitive::Grasp))?;
     let goal_grasp_q = best_grasp.0;
     let best_push = match input.push {
         Some(push) => {
             let starts = valid_push_starts(obs);
             let best = push
                 .best_where(&starts)
-                .ok_or(ActorError::NoQValue(Primitive::Push))?;
+                .ok_or(PolicyError::NoQValue(Primitive::Push))?;
             Some((push, starts, best))
         }
         None => None,
@@ -341,7 +341,7 @@ pub fn trial_grasps(
     n: usize,
     config: &PolicyConfig,
     rng: &mut impl Rng,
-) -> Result<Vec<Decision>, ActorError> {
+) -> Result<Vec<Decision>, PolicyError> {
     check_shape(Primitive::Grasp, grasp, obs)?;
     let region = grasp_region(obs, goal, config.grasp_margin);
     Ok((0..n)
@@ -372,11 +372,11 @@ fn uniform_draw(allowed: &[bool], side: usize, rng: &mut impl Rng) -> (u8, usize
 }
 
 /// Q maps must cover the observation's pixels at the simulator's rotations.
-fn check_shape(primitive: Primitive, maps: &QMaps, obs: &Heightmaps) -> Result<(), ActorError> {
+fn check_shape(primitive: Primitive, maps: &QMaps, obs: &Heightmaps) -> Result<(), PolicyError> {
     if maps.rotations() == ROTATIONS && maps.side() == obs.side() {
         Ok(())
     } else {
-        Err(ActorError::QMapsShape {
+        Err(PolicyError::QMapsShape {
             primitive,
             rotations: maps.rotations(),
             side: maps.side(),

@@ -13,7 +13,7 @@
 //! the labels and lifts the goal's grasp Q far above 2 (measured: a median 2.4 on grasps that
 //! succeeded 70% of the time), so every grasp passes Q* and the policy never pushes.
 
-use actor::{GRASP_REWARD, PUSH_REWARD};
+use crate::reward::{GRASP_REWARD, PUSH_REWARD};
 
 /// The lowest and highest value of any state: the reward bounds over 1 - gamma.
 fn value_bounds(gamma: f32) -> (f32, f32) {
