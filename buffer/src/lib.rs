@@ -16,13 +16,11 @@ pub mod replay;
 pub mod snapshot;
 pub mod store;
 pub mod sum_tree;
-pub mod transition;
 
 pub use config::BufferConfig;
 pub use error::{AssembleError, ReplayError, SnapshotError, SnapshotErrorKind};
 pub use rate_limit::RateLimiter;
 pub use relabel::{EpisodeAssembler, Pending, Ready};
-pub use replay::{Batch, BatchItem, Key, PrioritizedReplay};
+pub use replay::{Batch, PrioritizedReplay};
 pub use store::{ReplayBuffer, Serving, Stats};
 pub use sum_tree::SumTree;
-pub use transition::Transition;

@@ -16,13 +16,14 @@
 
 use std::collections::BTreeMap;
 
-use policy::PushReward;
+use policy::{GRASP_REWARD, PushReward};
 use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
 use sim::{ObjectId, Primitive};
 
+use experience::Transition;
+
 use crate::error::AssembleError;
-use crate::transition::Transition;
 
 /// A step waiting for its episode to end, with the actor's initial priority (|TD error|).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -177,7 +178,7 @@ fn relabel(
     copies.push(Transition {
         goal: object,
         // The grasp reward for g': it picked g'.
-        reward: 1.0,
+        reward: GRASP_REWARD,
         ..steps[grasp].clone()
     });
     Some(copies)

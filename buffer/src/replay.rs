@@ -2,6 +2,7 @@
 //! one sum tree per primitive, so push and grasp batches are drawn from their own experience
 //! at their own priorities.
 
+use experience::{BatchItem, Key, Transition};
 use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
 use sim::{ConfigError, Primitive};
@@ -9,33 +10,13 @@ use sim::{ConfigError, Primitive};
 use crate::config::BufferConfig;
 use crate::error::ReplayError;
 use crate::sum_tree::SumTree;
-use crate::transition::Transition;
-
-/// A stable name for a stored item: priority updates carry it back from the learner.
-/// `generation` counts the inserts into the primitive's ring, so once a slot is overwritten
-/// the old key no longer matches and its update is ignored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub struct Key {
-    pub primitive: Primitive,
-    pub slot: u32,
-    pub generation: u64,
-}
-
-/// One sampled item.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BatchItem<'a> {
-    pub key: Key,
-    pub transition: &'a Transition,
-    /// P(i) = p_i^alpha / sum_k p_k^alpha at the time of sampling.
-    pub probability: f64,
-    /// The importance-sampling weight (N P(i))^-beta divided by the batch's largest.
-    pub weight: f32,
-}
 
 /// A batch of one primitive, drawn with replacement.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Batch<'a> {
-    pub items: Vec<BatchItem<'a>>,
+    pub items: Vec<BatchItem<&'a Transition>>,
+    /// Each item's P(i) = p_i^alpha / sum_k p_k^alpha at the time of sampling.
+    pub probabilities: Vec<f64>,
     /// The beta the weights were computed with.
     pub beta: f64,
 }
@@ -274,7 +255,8 @@ impl PrioritizedReplay {
         let total = ring.tree.total();
         let len = ring.items.len() as f64;
         let stratum = total / n as f64;
-        let mut items: Vec<BatchItem<'_>> = Vec::with_capacity(n);
+        let mut items = Vec::with_capacity(n);
+        let mut probabilities = Vec::with_capacity(n);
         // The searches run a chunk at a time (`SumTree::find_many`), from scratch space on
         // the stack.
         const CHUNK: usize = 64;
@@ -293,25 +275,29 @@ impl PrioritizedReplay {
                 *generation = ring.generations[slot];
             }
             let found = slots[..m].iter().zip(&generations);
-            items.extend(found.map(|(&slot, &generation)| {
+            for (&slot, &generation) in found {
                 let probability = ring.tree.get(slot) / total;
-                BatchItem {
+                probabilities.push(probability);
+                items.push(BatchItem {
                     key: Key {
                         primitive,
                         slot: slot as u32,
                         generation,
                     },
-                    transition: &ring.items[slot],
-                    probability,
                     weight: (len * probability).powf(-beta) as f32,
-                }
-            }));
+                    transition: &ring.items[slot],
+                });
+            }
         }
         let max_weight = items.iter().map(|i| i.weight).fold(0.0f32, f32::max);
         for item in &mut items {
             item.weight /= max_weight;
         }
-        Ok(Batch { items, beta })
+        Ok(Batch {
+            items,
+            probabilities,
+            beta,
+        })
     }
 
     /// Checks the invariants a snapshot must satisfy against the config it carries.

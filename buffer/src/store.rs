@@ -1,6 +1,7 @@
 //! The buffer as one value: the prioritised replay, the rate limiter and the episode
 //! assembler, kept consistent with each other (what the buffer role runs and snapshots).
 
+use experience::{Key, Transition};
 use policy::PushReward;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -10,8 +11,7 @@ use crate::config::BufferConfig;
 use crate::error::{AssembleError, ReplayError};
 use crate::rate_limit::RateLimiter;
 use crate::relabel::{EpisodeAssembler, Ready};
-use crate::replay::{Batch, Key, PrioritizedReplay};
-use crate::transition::Transition;
+use crate::replay::{Batch, PrioritizedReplay};
 
 /// Counters for progress displays and logs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -4,9 +4,10 @@
 use std::path::PathBuf;
 
 use buffer::{
-    AssembleError, BufferConfig, EpisodeAssembler, Key, PrioritizedReplay, ReplayBuffer,
-    ReplayError, Serving, SnapshotErrorKind, Transition,
+    AssembleError, BufferConfig, EpisodeAssembler, PrioritizedReplay, ReplayBuffer, ReplayError,
+    Serving, SnapshotErrorKind,
 };
+use experience::{Key, Transition};
 use policy::PushReward;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -67,10 +68,10 @@ fn sampling_frequencies_are_proportional_to_priority_to_the_alpha() {
     let (batches, n) = (4_000, 32);
     for _ in 0..batches {
         let batch = replay.sample(Primitive::Grasp, n, &mut rng).unwrap();
-        for item in &batch.items {
+        for (item, probability) in batch.items.iter().zip(&batch.probabilities) {
             counts[item.key.slot as usize] += 1;
             let expected = weights[item.key.slot as usize] / total;
-            assert!((item.probability - expected).abs() < 1e-12);
+            assert!((probability - expected).abs() < 1e-12);
         }
     }
     let draws = (batches * n) as f64;
@@ -116,15 +117,15 @@ fn importance_weights_follow_the_formula_on_a_hand_case() {
     // P = 1/4 and 3/4, N = 2: w = (2 P)^-0.5 = sqrt(2) and sqrt(2/3); the largest is a's.
     let expected_b = ((2.0f64 * 0.75).powf(-0.5) / (2.0f64 * 0.25).powf(-0.5)) as f32;
     let (mut seen_a, mut seen_b) = (0, 0);
-    for item in &batch.items {
+    for (item, &probability) in batch.items.iter().zip(&batch.probabilities) {
         if item.key == a {
             seen_a += 1;
-            assert_eq!(item.probability, 0.25);
+            assert_eq!(probability, 0.25);
             assert_eq!(item.weight, 1.0);
         } else {
             assert_eq!(item.key, b);
             seen_b += 1;
-            assert_eq!(item.probability, 0.75);
+            assert_eq!(probability, 0.75);
             assert!((item.weight - expected_b).abs() < 1e-6, "{}", item.weight);
         }
     }

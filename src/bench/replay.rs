@@ -16,8 +16,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use buffer::{BufferConfig, PrioritizedReplay, Transition};
+use buffer::{BufferConfig, PrioritizedReplay};
 use clap::Args;
+use experience::Transition;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{Map, Value};

@@ -8,7 +8,7 @@
 
 use agent::{Agent, Choice};
 use anyhow::{Context, Result};
-use buffer::Transition;
+use experience::Transition;
 use mcaplog::RunLog;
 use policy::{Decision, PushReward, QMaps, grasp_reward, trial_grasps};
 use policy::{grasp_label, push_label};

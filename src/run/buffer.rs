@@ -18,8 +18,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use wire::{
-    BatchItem, BatchMessage, Control, EpisodeEnd, Inbox, Message, Origin, Outbox, Role,
-    SampleRequest, Status, Step, Topic, Transport,
+    BatchMessage, Control, EpisodeEnd, Inbox, Message, Origin, Outbox, Role, SampleRequest, Status,
+    Step, Topic, Transport,
 };
 
 use super::config::RunConfig;
@@ -190,15 +190,7 @@ impl BufferRole {
             Vec::new()
         } else {
             let batch = self.replay.sample(request.primitive, size, &mut self.rng)?;
-            batch
-                .items
-                .iter()
-                .map(|item| BatchItem {
-                    key: item.key,
-                    weight: item.weight,
-                    transition: item.transition.clone(),
-                })
-                .collect()
+            batch.items.iter().map(|item| item.cloned()).collect()
         };
         self.requests.pop_front();
         batches.send(&Message::Batch(BatchMessage {

@@ -11,7 +11,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
-use buffer::Transition;
+use experience::Transition;
 use learner::checkpoint::config_hash;
 use learner::{Checkpoint, Manifest, Sample, SavedNets, Trainer};
 use mcaplog::RunLog;

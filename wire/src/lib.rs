@@ -19,8 +19,8 @@ pub use channel::ChannelTransport;
 pub use codec::{PROTOCOL_VERSION, decode, encode_into};
 pub use error::{TransportError, WireError};
 pub use message::{
-    BatchItem, BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role,
-    SampleRequest, Status, Step, Weights,
+    BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role, SampleRequest,
+    Status, Step, Weights,
 };
 pub use shm::{MAX_RUN_ID, ShmTransport, StaleCleanup};
 pub use topic::{Delivery, Topic};

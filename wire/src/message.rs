@@ -1,7 +1,7 @@
-//! The messages of a run (DESIGN.md "Messages"). Steps flow actor -> buffer -> learner; only
+//! The messages of a run, and who sends each. Steps flow actor -> buffer -> learner; only
 //! priorities, weights and control flow back.
 
-use buffer::{Key, Transition};
+use experience::{BatchItem, Key, Transition};
 use serde::{Deserialize, Serialize};
 use sim::{ObjectId, Primitive};
 
@@ -83,15 +83,6 @@ pub struct SampleRequest {
     pub id: u64,
     pub primitive: Primitive,
     pub size: u32,
-}
-
-/// One sampled transition with what the learner needs to weigh it and update its priority.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct BatchItem {
-    pub key: Key,
-    /// The importance-sampling weight.
-    pub weight: f32,
-    pub transition: Transition,
 }
 
 /// The buffer's answer to a [`SampleRequest`] (buffer -> learner).
