@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 use sim::{ANY_OBJECT, ObjectId, Primitive};
-use sweep::mean_and_spread;
+use stats::mean_and_spread;
 
 /// Failed grasp attempts in a row that end a run incomplete.
 pub const MAX_FAILED_GRASPS: usize = 10;

@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use serde::Serialize;
-use sweep::{group_by_all_but, mean_and_spread};
+use stats::mean_and_spread;
+use sweep::group_by_all_but;
 
 use super::dir::{RunEntry, RunState, SweepDir};
 use super::table;

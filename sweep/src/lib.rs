@@ -1,7 +1,7 @@
 //! Training sweeps over a base training config: the sweep file ([`Sweep::load`]), its
 //! expansion into runs with resolved configs ([`Sweep::expand`]), the Slurm job-array script
 //! ([`job_array_script`]), Slurm's accounting output ([`parse_sacct`], [`parse_squeue`]) and
-//! statistics over seeds ([`mean_and_spread`], [`group_by_all_but`]).
+//! the grouping of runs over seeds ([`group_by_all_but`]).
 //!
 //! Everything here is pure: launching runs and showing progress belong to the binary.
 
@@ -10,14 +10,14 @@ mod axis;
 mod error;
 mod expand;
 mod file;
+mod group;
 mod keys;
 mod slurm;
-mod stats;
 
 pub use accounting::{JobState, parse_sacct, parse_squeue};
 pub use axis::Axis;
 pub use error::SweepError;
 pub use expand::{RunPlan, dry_run_listing};
 pub use file::{Budget, Sweep};
+pub use group::group_by_all_but;
 pub use slurm::{SlurmOptions, bash_quote, job_array_script};
-pub use stats::{group_by_all_but, mean_and_spread};
