@@ -9,6 +9,7 @@ mod inspect;
 mod mask_shape;
 mod pictures;
 mod pipeline;
+mod rows;
 mod run;
 mod scene;
 mod sweeps;

@@ -59,6 +59,15 @@ impl BufferConfig {
         ConfigError::check_range("alpha", self.alpha, 0.0..)?;
         ConfigError::check_range("beta_start", self.beta_start, 0.0..=1.0)?;
         ConfigError::check_range("priority_epsilon", self.priority_epsilon, above(0.0))?;
-        RateLimiter::from_config(self).map(drop)
+        self.rate_limiter().map(drop)
+    }
+
+    /// The limiter this config asks for.
+    pub fn rate_limiter(&self) -> Result<RateLimiter, ConfigError> {
+        RateLimiter::sample_to_insert_ratio(
+            self.samples_per_insert,
+            self.min_size_to_sample,
+            self.error_buffer,
+        )
     }
 }

@@ -16,10 +16,7 @@
 //! reading its transport, or tell the learner to wait).
 
 use serde::{Deserialize, Serialize};
-
 use sim::{ConfigError, above};
-
-use crate::config::BufferConfig;
 
 /// Counts of inserts, samples and deletes, and the window the samples-per-insert ratio must
 /// stay in.
@@ -65,15 +62,6 @@ impl RateLimiter {
             samples: 0,
             deletes: 0,
         })
-    }
-
-    /// The limiter a config asks for.
-    pub fn from_config(config: &BufferConfig) -> Result<Self, ConfigError> {
-        Self::sample_to_insert_ratio(
-            config.samples_per_insert,
-            config.min_size_to_sample,
-            config.error_buffer,
-        )
     }
 
     fn size(&self) -> u64 {

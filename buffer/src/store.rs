@@ -56,7 +56,7 @@ impl ReplayBuffer {
     pub fn new(config: BufferConfig, serving: Serving) -> Result<Self, ConfigError> {
         Ok(Self {
             replay: PrioritizedReplay::new(&config)?,
-            limiter: RateLimiter::from_config(&config)?,
+            limiter: config.rate_limiter()?,
             assembler: EpisodeAssembler::new(),
             config,
             serving,

@@ -5,8 +5,11 @@ use std::ops::Bound;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ConfigError, SimError, above};
-use crate::primitives::HELD_MIN_RISE;
 use crate::workspace::{self, PixelGrid};
+
+/// A grasp holds an object if it touches both fingers and rose at least this much (m); the
+/// lift must reach it.
+pub(crate) const HELD_MIN_RISE: f32 = 0.05;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

@@ -8,6 +8,7 @@ use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Heightmaps;
+use crate::config::HELD_MIN_RISE;
 use crate::error::SimError;
 use crate::gripper::MAX_OPENING;
 use crate::tabletop::{ObjectId, Tabletop};
@@ -39,8 +40,6 @@ const CLOSE_MAX_S: f32 = 0.3;
 const CLOSE_STOPPED_SPEED: f32 = 0.002;
 /// Time held still after the lift before the grasp is judged (s).
 const HOLD_S: f32 = 0.1;
-/// An object is held if it touches both fingers and rose at least this much.
-pub(crate) const HELD_MIN_RISE: f32 = 0.05;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -8,7 +8,7 @@ use toml::{Table, Value};
 use crate::axis::{Axis, RawAxis};
 use crate::error::SweepError;
 use crate::keys;
-use crate::slurm::SlurmOptions;
+use crate::options::SlurmOptions;
 
 /// A loaded and checked sweep: a base config and the axes that vary it.
 #[derive(Debug, Clone, PartialEq)]

@@ -12,6 +12,7 @@ mod expand;
 mod file;
 mod group;
 mod keys;
+mod options;
 mod slurm;
 
 pub use accounting::{JobState, parse_sacct, parse_squeue};
@@ -20,4 +21,5 @@ pub use error::SweepError;
 pub use expand::{RunPlan, dry_run_listing};
 pub use file::{Budget, Sweep};
 pub use group::group_by_all_but;
-pub use slurm::{SlurmOptions, bash_quote, job_array_script};
+pub use options::SlurmOptions;
+pub use slurm::{bash_quote, job_array_script};
