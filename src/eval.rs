@@ -15,9 +15,9 @@ use learner::{Checkpoint, SavedNets};
 use serde::Serialize;
 use sim::Arrangement;
 
-use crate::run::config::RunConfig;
-use crate::run::files_with_extension;
-use crate::run::settings::{load_with, merge, parse_setting};
+use runtime::config::RunConfig;
+use runtime::files_with_extension;
+use runtime::settings::{load_with, merge, parse_setting};
 
 #[derive(Args)]
 pub struct EvalArgs {

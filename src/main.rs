@@ -10,7 +10,6 @@ mod mask_shape;
 mod pictures;
 mod pipeline;
 mod rows;
-mod run;
 mod scene;
 mod sweeps;
 
@@ -53,12 +52,12 @@ enum Command {
     /// Run a scripted episode on a random scene and write what the robot saw to logs/.
     Episode(episode::EpisodeArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
-    Train(run::TrainArgs),
+    Train(runtime::TrainArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
     Pipeline(pipeline::PipelineArgs),
     /// One role of a training run (started by `train`, not by hand).
     #[command(hide = true)]
-    Role(run::RoleArgs),
+    Role(runtime::RoleArgs),
     /// Test a checkpoint the paper's way: completion, goal grasp success, motion number.
     Eval(eval::EvalArgs),
     /// Read a run's MCAP logs: files, counts, the goal grasp success curve.
@@ -79,9 +78,9 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Scene(command) => scene::run(command),
         Command::Episode(args) => episode::run(&args),
-        Command::Train(args) => run::train(&args),
+        Command::Train(args) => runtime::train(&args),
         Command::Pipeline(args) => pipeline::run(&args),
-        Command::Role(args) => run::role_process(&args),
+        Command::Role(args) => runtime::role_process(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Inspect(args) => inspect::inspect(&args),
         Command::Logs(command) => inspect::logs(command),

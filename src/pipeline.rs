@@ -14,9 +14,9 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Deserialize;
 
-use crate::run::config::RunConfig;
-use crate::run::launch::Summary;
-use crate::run::settings::{load_with, merge, parse_setting};
+use runtime::config::RunConfig;
+use runtime::launch::Summary;
+use runtime::settings::{load_with, merge, parse_setting};
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -182,7 +182,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
         lines.push(format!(
             "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
             summary.buffer.episodes,
-            crate::run::launch::percent(summary.buffer.success_last30),
+            runtime::launch::percent(summary.buffer.success_last30),
             summary.wall_s
         ));
         previous = Some(run_dir.join("checkpoint"));
@@ -211,10 +211,9 @@ mod tests {
     #[test]
     fn the_shipped_pipelines_resolve_to_valid_stage_configs() {
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
-        let mut files =
-            crate::run::files_with_extension(&configs.join("ablations"), "toml").unwrap();
+        let mut files = runtime::files_with_extension(&configs.join("ablations"), "toml").unwrap();
         files.extend(
-            crate::run::files_with_extension(&configs, "toml")
+            runtime::files_with_extension(&configs, "toml")
                 .unwrap()
                 .into_iter()
                 .filter(|f| {

@@ -11,7 +11,7 @@ use clap::Args;
 use serde_json::{Map, Value};
 
 use super::print_figures;
-use crate::run::read_json;
+use runtime::read_json;
 
 #[derive(Args)]
 pub struct E2eBenchArgs {

@@ -244,7 +244,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     let backend = qnet::Backend::selected();
     let device = backend.device();
     let net = match &args.config {
-        Some(path) => crate::run::config::RunConfig::load(path)?.net,
+        Some(path) => runtime::config::RunConfig::load(path)?.net,
         None => QNetConfig::default(),
     };
     let mut figures = serde_json::Map::new();

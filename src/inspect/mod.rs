@@ -15,8 +15,8 @@ use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use serde::Serialize;
 
-use crate::run::SUCCESS_WINDOW;
 use run::{EpisodeRow, FileReport, Run, pipeline_stages};
+use runtime::SUCCESS_WINDOW;
 
 #[derive(Args)]
 pub struct InspectArgs {

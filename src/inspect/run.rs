@@ -9,11 +9,11 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use wire::EpisodeEnd;
 
-use crate::run::buffer::BufferReport;
-use crate::run::config::RunConfig;
-use crate::run::record::{ACTOR_STEP, BUFFER_EPISODE, BUFFER_STATS, LEARNER_UPDATE};
-use crate::run::record::{StepRecord, UpdateRecord};
-use crate::run::{SUCCESS_WINDOW, files_with_extension};
+use runtime::buffer::BufferReport;
+use runtime::config::RunConfig;
+use runtime::record::{ACTOR_STEP, BUFFER_EPISODE, BUFFER_STATS, LEARNER_UPDATE};
+use runtime::record::{StepRecord, UpdateRecord};
+use runtime::{SUCCESS_WINDOW, files_with_extension};
 
 /// Curves are drawn every this many episodes.
 const CURVE_EVERY: usize = 10;

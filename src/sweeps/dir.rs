@@ -17,9 +17,9 @@ use sweep::RunPlan;
 
 use super::Backend;
 use super::plan::Plan;
-use crate::run::launch::{ProcessEntry, Progress, Summary};
-use crate::run::record::LAUNCHER_PROGRESS;
-use crate::run::{read_json, write_json};
+use runtime::launch::{ProcessEntry, Progress, Summary};
+use runtime::record::LAUNCHER_PROGRESS;
+use runtime::{read_json, write_json};
 
 /// `sweep.json`.
 #[derive(Debug, Serialize, Deserialize)]

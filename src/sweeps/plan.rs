@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result, anyhow};
 use sweep::{Axis, RunPlan, Sweep, dry_run_listing};
 
-use crate::run::config::RunConfig;
+use runtime::config::RunConfig;
 
 /// A loaded sweep and its runs, every one with a valid config.
 pub struct Plan {

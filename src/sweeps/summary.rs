@@ -15,7 +15,7 @@ use sweep::group_by_all_but;
 
 use super::dir::{RunEntry, RunState, SweepDir};
 use super::table;
-use crate::run::SUCCESS_WINDOW;
+use runtime::SUCCESS_WINDOW;
 
 /// A run "reached 80%" at the first episode, from the 30th on, where at least this share of
 /// its last 30 goal grasps succeeded, written as numerator / denominator to compare exactly

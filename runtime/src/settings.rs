@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 
-use crate::run::config::RunConfig;
+use crate::config::RunConfig;
 
 /// `key=value` as the one-entry TOML table it sets (`a.b=1` is `{ a = { b = 1 } }`); the
 /// value parser of every `--set`.

@@ -308,7 +308,7 @@ mod tests {
         let share = drawn.iter().filter(|&&n| n == pack).count() as f64 / 4000.0;
         assert!((share - 0.25).abs() < 0.03, "{share}");
 
-        let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
+        let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/stage1.toml");
         let text = std::fs::read_to_string(stage1).unwrap();
         let with = |rows: &str| RunConfig::parse(&format!("{text}\n[rows]\n{rows}"), "run.toml");
         with("share = 0.3\nobjects = 4").unwrap();
@@ -327,7 +327,7 @@ mod tests {
 
     #[test]
     fn grasp_trials_are_refused_where_the_grasp_net_is_frozen() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
         let with_trials = |stage: u8| {
             let text = std::fs::read_to_string(dir.join(format!("stage{stage}.toml"))).unwrap();
             let mut table: toml::Table = toml::from_str(&text).unwrap();
@@ -345,7 +345,7 @@ mod tests {
 
     #[test]
     fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
-        let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/stage1.toml");
+        let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/stage1.toml");
         let text = std::fs::read_to_string(stage1).unwrap();
         // `field` is `table.key`; the error must name it (a nested table's key after it).
         let with = |field: &str, value: &str| {
@@ -406,7 +406,7 @@ mod tests {
             ),
         ] {
             let path =
-                Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("configs/stage{stage}.toml"));
+                Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../configs/stage{stage}.toml"));
             let config = RunConfig::load(&path).unwrap();
             assert_eq!(config.stage, stage);
             assert_eq!(config.mode(), mode);
