@@ -16,8 +16,8 @@ use serde::Serialize;
 use sim::Arrangement;
 
 use runtime::config::RunConfig;
-use runtime::files_with_extension;
 use runtime::settings::{load_with, merge, parse_setting};
+use runtime::{RunDir, files_with_extension};
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -278,7 +278,7 @@ pub fn load_agent(
         Some(path) => path.to_path_buf(),
         None => checkpoint
             .parent()
-            .map(|run| run.join("config.toml"))
+            .map(|run| RunDir::new(run).config())
             .context("--checkpoint has no parent directory; name the config with --config")?,
     };
     let (config, _) = load_with(&config_path, set, "--set")?;

@@ -15,8 +15,8 @@ use clap::Args;
 use serde::Deserialize;
 
 use runtime::config::RunConfig;
-use runtime::launch::Summary;
 use runtime::settings::{load_with, merge, parse_setting};
+use runtime::{RunDir, Summary};
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -133,7 +133,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
     } in &stages
     {
         let run_id = format!("stage{}", config.stage);
-        let run_dir = dir.join(&run_id);
+        let run_dir = RunDir::in_logs(&dir, &run_id);
         // A [set] pipeline trains on its resolved configs, kept beside the stages.
         let path = match resolved {
             Some(text) => {
@@ -155,7 +155,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
                 .arg("--logs")
                 .arg(&dir)
                 .args(["--run-id", &run_id]);
-            if run_dir.join("config.toml").exists() {
+            if run_dir.holds_run() {
                 command.arg("--resume");
             } else if let Some(checkpoint) = &previous {
                 command.arg("--init-from").arg(checkpoint);
@@ -173,19 +173,19 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
                     "{run_id} ({}) failed ({status}); its logs are in {}; run the pipeline \
                      again with --id {id} to continue",
                     path.display(),
-                    run_dir.display()
+                    run_dir.path().display()
                 );
             }
         }
         let summary = Summary::read(&run_dir)?
-            .with_context(|| format!("{}: no summary.json", run_dir.display()))?;
+            .with_context(|| format!("{}: no summary", run_dir.path().display()))?;
         lines.push(format!(
             "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
             summary.buffer.episodes,
-            runtime::launch::percent(summary.buffer.success_last30),
+            runtime::progress::percent(summary.buffer.success_last30),
             summary.wall_s
         ));
-        previous = Some(run_dir.join("checkpoint"));
+        previous = Some(run_dir.checkpoint());
     }
     println!(
         "pipeline {id} done in {:.0} s ({})",

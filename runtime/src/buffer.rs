@@ -8,7 +8,6 @@
 //! episodes the old one left open are stored as they are.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -24,7 +23,8 @@ use wire::{
 
 use super::config::RunConfig;
 use super::record::{BUFFER_EPISODE, BUFFER_STATS};
-use super::{Lifeline, STATUS_EVERY, SUCCESS_WINDOW, write_json};
+use super::run_dir::RunDir;
+use super::{Lifeline, STATUS_EVERY, SUCCESS_WINDOW, read_json, write_json};
 
 /// What one actor incarnation's stream delivered.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -69,24 +69,6 @@ impl BufferReport {
 fn success(outcomes: &[bool]) -> Option<f64> {
     (!outcomes.is_empty())
         .then(|| outcomes.iter().filter(|&&s| s).count() as f64 / outcomes.len() as f64)
-}
-
-/// Where the buffer keeps its state in a run directory.
-pub struct BufferFiles {
-    pub snapshot: PathBuf,
-    pub counters: PathBuf,
-    /// Per episode: whether its goal was grasped, and the success over the last 30.
-    pub curve: PathBuf,
-}
-
-impl BufferFiles {
-    pub fn in_dir(dir: &Path) -> Self {
-        Self {
-            snapshot: dir.join("buffer.snapshot"),
-            counters: dir.join("buffer-counters.json"),
-            curve: dir.join("curve.csv"),
-        }
-    }
 }
 
 struct BufferRole {
@@ -226,10 +208,10 @@ impl BufferRole {
         }
     }
 
-    fn save(&mut self, files: &BufferFiles) -> Result<()> {
+    fn save(&mut self, dir: &RunDir) -> Result<()> {
         self.report.snapshots += 1;
         self.sync_report();
-        self.replay.save(&files.snapshot)?;
+        self.replay.save(&dir.snapshot())?;
         let state = SavedState {
             report: self.report.clone(),
             open: self
@@ -239,15 +221,15 @@ impl BufferRole {
                 .collect(),
             outcomes: self.outcomes.clone(),
         };
-        write_json(&files.counters, &state)?;
+        write_json(&dir.buffer_counters(), &state)?;
         let mut curve = String::from("episode,goal_grasped,success_last30\n");
         for (i, &grasped) in self.outcomes.iter().enumerate() {
             let window = &self.outcomes[(i + 1).saturating_sub(SUCCESS_WINDOW)..=i];
             let rate = success(window).expect("not empty");
             curve.push_str(&format!("{},{},{rate:.4}\n", i + 1, u8::from(grasped)));
         }
-        std::fs::write(&files.curve, curve)
-            .with_context(|| format!("writing {}", files.curve.display()))
+        let path = dir.curve();
+        std::fs::write(&path, curve).with_context(|| format!("writing {}", path.display()))
     }
 }
 
@@ -264,12 +246,11 @@ struct SavedState {
 pub fn run(
     transport: &dyn Transport,
     config: &RunConfig,
-    dir: &Path,
+    dir: &RunDir,
     resume: bool,
     log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<BufferReport> {
-    let files = BufferFiles::in_dir(dir);
     let mut role = BufferRole {
         replay: ReplayBuffer::new(
             config.buffer.clone(),
@@ -288,12 +269,9 @@ pub fn run(
         rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xb0ff),
         outcomes: Vec::new(),
     };
-    if resume && files.snapshot.exists() {
-        role.replay = ReplayBuffer::load(&files.snapshot)?;
-        let text = std::fs::read(&files.counters)
-            .with_context(|| format!("reading {}", files.counters.display()))?;
-        let saved: SavedState = serde_json::from_slice(&text)
-            .with_context(|| format!("reading {}", files.counters.display()))?;
+    if resume && dir.snapshot().exists() {
+        role.replay = ReplayBuffer::load(&dir.snapshot())?;
+        let saved: SavedState = read_json(&dir.buffer_counters())?;
         role.report = saved.report;
         role.outcomes = saved.outcomes;
         let open: BTreeMap<(u32, u32), Vec<u64>> = saved.open.into_iter().collect();
@@ -324,7 +302,7 @@ pub fn run(
             match message {
                 Message::Control(Control::Stop(Role::Actor)) => actors_stopped = true,
                 Message::Control(Control::Stop(Role::Buffer)) => stop = true,
-                Message::Control(Control::Snapshot) => role.save(&files)?,
+                Message::Control(Control::Snapshot) => role.save(dir)?,
                 _ => {}
             }
         }
@@ -376,7 +354,7 @@ pub fn run(
             std::thread::sleep(Duration::from_millis(1));
         }
     }
-    role.save(&files)?;
+    role.save(dir)?;
     status.send(&Message::Status(role.status()))?;
     log.json(BUFFER_STATS, &role.report)?;
     Ok(role.report)

@@ -7,7 +7,6 @@
 //! growing across `--resume`.
 
 use std::collections::VecDeque;
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
@@ -26,6 +25,7 @@ use wire::{
 
 use super::config::RunConfig;
 use super::record::{LEARNER_UPDATE, UpdateRecord};
+use super::run_dir::RunDir;
 use super::{Lifeline, STATUS_EVERY, stop_requested};
 
 const IN_FLIGHT: usize = 2;
@@ -162,7 +162,7 @@ impl LearnerRole<'_> {
 pub fn run(
     transport: &dyn Transport,
     config: &RunConfig,
-    dir: &Path,
+    dir: &RunDir,
     resume: bool,
     log: &RunLog,
     lifeline: &Lifeline,
@@ -182,7 +182,7 @@ pub fn run(
             config.trained_nets()[0],
             &device,
         ),
-        checkpoint: Checkpoint::at(dir.join("checkpoint")),
+        checkpoint: Checkpoint::at(dir.checkpoint()),
         updates_before: 0,
         report: LearnerReport::default(),
     };

@@ -8,20 +8,24 @@ pub mod buffer;
 pub mod config;
 pub mod launch;
 pub mod learner;
+pub mod progress;
 pub mod record;
+pub mod role;
+pub mod run_dir;
 pub mod settings;
+pub mod supervisor;
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use clap::{Args, ValueEnum};
 use serde::Serialize;
 use wire::{Control, Inbox, Message, Role};
 
 pub use launch::{TrainArgs, train};
+pub use progress::{Progress, Summary};
+pub use role::{RoleArgs, RoleId, role_process};
+pub use run_dir::RunDir;
 
 /// Goal grasp success is reported over this many most recent attempts (the paper's metric).
 pub const SUCCESS_WINDOW: usize = 30;
@@ -88,62 +92,4 @@ pub fn files_with_extension(dir: &Path, extension: &str) -> Result<Vec<PathBuf>>
         anyhow::bail!("{}: no .{extension} files", dir.display());
     }
     Ok(files)
-}
-
-/// Which role a child process plays.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum RoleKind {
-    Buffer,
-    Learner,
-    Actor,
-}
-
-/// `pushgrasp role`: one role of a run, started by the launcher (not by hand).
-#[derive(Args)]
-pub struct RoleArgs {
-    #[arg(value_enum)]
-    role: RoleKind,
-    /// The run directory (holds the resolved config.toml).
-    #[arg(long)]
-    run_dir: PathBuf,
-    /// The namespace of the run's shared-memory services (the launcher's `shm_namespace`).
-    #[arg(long)]
-    shm_namespace: String,
-    #[arg(long)]
-    resume: bool,
-    /// The actor's index.
-    #[arg(long, default_value_t = 0)]
-    index: u32,
-    /// How many times this actor index was started before.
-    #[arg(long, default_value_t = 0)]
-    incarnation: u32,
-}
-
-/// The entry of a child process: the role over shared memory, reports to the run directory.
-pub fn role_process(args: &RoleArgs) -> Result<()> {
-    // Ctrl-C in a terminal reaches the whole process group: the launcher alone decides, and
-    // stops the roles in order through the control topic.
-    signal_hook::flag::register(
-        signal_hook::consts::SIGINT,
-        Arc::new(AtomicBool::new(false)),
-    )
-    .context("installing the signal handler")?;
-    let config = config::RunConfig::load(&args.run_dir.join("config.toml"))?;
-    let spec = match args.role {
-        RoleKind::Buffer => launch::RoleSpec::Buffer,
-        RoleKind::Learner => launch::RoleSpec::Learner,
-        RoleKind::Actor => launch::RoleSpec::Actor(actor::ActorId {
-            index: args.index,
-            incarnation: args.incarnation,
-        }),
-    };
-    let transport = wire::ShmTransport::new(&args.shm_namespace, &spec.name())?;
-    launch::run_role(
-        &transport,
-        spec,
-        &config,
-        &args.run_dir,
-        args.resume,
-        &Lifeline::child(),
-    )
 }

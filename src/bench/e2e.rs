@@ -11,7 +11,7 @@ use clap::Args;
 use serde_json::{Map, Value};
 
 use super::print_figures;
-use runtime::read_json;
+use runtime::{RunDir, read_json};
 
 #[derive(Args)]
 pub struct E2eBenchArgs {
@@ -80,7 +80,7 @@ pub(super) fn train_run(
             String::from_utf8_lossy(&output.stderr)
         );
     }
-    read_json(&logs.join(&run_id).join("summary.json"))
+    read_json(&RunDir::in_logs(logs, &run_id).summary())
 }
 
 /// Actions per second summed over a run's actors, each over its own acting time (process

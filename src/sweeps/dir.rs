@@ -17,8 +17,9 @@ use sweep::RunPlan;
 
 use super::Backend;
 use super::plan::Plan;
-use runtime::launch::{ProcessEntry, Progress, Summary};
 use runtime::record::LAUNCHER_PROGRESS;
+use runtime::supervisor::ProcessEntry;
+use runtime::{Progress, RunDir, Summary};
 use runtime::{read_json, write_json};
 
 /// `sweep.json`.
@@ -119,8 +120,8 @@ impl SweepDir {
         self.path.join("runs").join(format!("{id}.toml"))
     }
 
-    pub fn run_dir(&self, id: &str) -> PathBuf {
-        self.path.join(id)
+    pub fn run_dir(&self, id: &str) -> RunDir {
+        RunDir::in_logs(&self.path, id)
     }
 
     pub fn output(&self, id: &str) -> PathBuf {
@@ -286,7 +287,7 @@ impl SweepDir {
 
     /// Whether the run has a config in its run directory (`train` has taken it on).
     pub fn started(&self, id: &str) -> bool {
-        self.run_dir(id).join("config.toml").exists()
+        self.run_dir(id).holds_run()
     }
 
     /// Where the run stands, from its directory alone (a Slurm task's state is not in it).
@@ -312,7 +313,7 @@ impl SweepDir {
     /// Whether any role process the run's `processes.json` names is alive on this machine:
     /// its command line still carries the run's id (a zombie's or a reused pid's does not).
     pub fn roles_alive(&self, id: &str) -> bool {
-        let path = self.run_dir(id).join("processes.json");
+        let path = self.run_dir(id).processes();
         let Ok(entries) = read_json::<Vec<ProcessEntry>>(&path) else {
             return false;
         };
@@ -325,7 +326,7 @@ impl SweepDir {
     /// The episodes a running run has finished, from its launcher's newest progress record
     /// (`curve.csv` is only written at snapshots). `None` without an MCAP log.
     pub fn live_episodes(&self, id: &str) -> Option<u64> {
-        let log = self.run_dir(id).join("launcher.mcap");
+        let log = self.run_dir(id).mcap("launcher");
         let last = mcaplog::json_messages(&log, LAUNCHER_PROGRESS)
             .ok()?
             .pop()?;

@@ -137,7 +137,7 @@ pub fn print(args: &SummaryArgs) -> Result<()> {
 
 fn row(dir: &SweepDir, entry: &RunEntry) -> Result<Row> {
     let summary = dir.summary(&entry.id)?;
-    let curve_path = dir.run_dir(&entry.id).join("curve.csv");
+    let curve_path = dir.run_dir(&entry.id).curve();
     let outcomes = if curve_path.exists() {
         read_curve(&curve_path)?
     } else {

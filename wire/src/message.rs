@@ -26,6 +26,36 @@ pub enum Role {
     Learner,
 }
 
+impl Role {
+    pub const ALL: [Role; 3] = [Role::Actor, Role::Buffer, Role::Learner];
+
+    /// The role's name, the one place roles are named (command lines, logs, files).
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Actor => "actor",
+            Role::Buffer => "buffer",
+            Role::Learner => "learner",
+        }
+    }
+}
+
+impl std::fmt::Display for Role {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Role {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Self, String> {
+        Role::ALL
+            .into_iter()
+            .find(|role| role.name() == name)
+            .ok_or_else(|| format!("{name:?} is not a role (actor, buffer or learner)"))
+    }
+}
+
 /// Who sent a message on the steps topic, and its place in that sender's stream: `seq`
 /// counts every step and episode end an actor incarnation sent, from 0, so the buffer can
 /// prove that nothing was lost.

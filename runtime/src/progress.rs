@@ -1,0 +1,143 @@
+//! What the launcher knows of a run while it goes ([`Progress`], from every role's status
+//! reports) and what it says of it at the end ([`Summary`]).
+
+use std::collections::BTreeMap;
+
+use anyhow::Result;
+use serde::{Deserialize, Serialize};
+use wire::Status;
+
+use crate::actor::ActorReport;
+use crate::buffer::BufferReport;
+use crate::learner::LearnerReport;
+use crate::read_json;
+use crate::run_dir::RunDir;
+
+/// What the launcher saw of the run, from the roles' status reports.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Progress {
+    pub episodes: u64,
+    pub steps_received: u64,
+    pub success_last30: Option<f64>,
+    pub stored: u64,
+    pub capacity: u64,
+    pub relabelled: u64,
+    pub lost: u64,
+    pub updates: u64,
+    pub weights_version: u64,
+    pub loss: Option<f32>,
+    /// Each actor index's newest report. (Absent from logs written before it: empty.)
+    #[serde(default)]
+    pub actors: BTreeMap<u32, ActorProgress>,
+}
+
+/// What an actor last reported.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ActorProgress {
+    pub incarnation: u32,
+    pub episodes: u64,
+    pub steps_sent: u64,
+    /// The weights it acts with.
+    pub weights_version: u64,
+}
+
+impl Progress {
+    /// Takes a report in; a failure report is returned as text.
+    pub fn take(&mut self, status: Status) -> Option<String> {
+        match status {
+            Status::Buffer {
+                steps_received,
+                episodes,
+                success_last30,
+                stored,
+                capacity,
+                relabelled,
+                lost,
+                ..
+            } => {
+                self.steps_received = steps_received;
+                self.episodes = episodes;
+                self.success_last30 = success_last30;
+                self.stored = stored;
+                self.capacity = capacity;
+                self.relabelled = relabelled;
+                self.lost = lost;
+            }
+            Status::Learner {
+                updates,
+                weights_version,
+                loss,
+            } => {
+                self.updates = updates;
+                self.weights_version = weights_version;
+                self.loss = loss;
+            }
+            Status::Actor {
+                actor,
+                incarnation,
+                episodes,
+                steps_sent,
+                weights_version,
+            } => {
+                let progress = ActorProgress {
+                    incarnation,
+                    episodes,
+                    steps_sent,
+                    weights_version,
+                };
+                self.actors.insert(actor, progress);
+            }
+            Status::Failed { role, error } => return Some(format!("{role}: {error}")),
+        }
+        None
+    }
+
+    /// The oldest weights an actor acts with, once every actor has reported.
+    pub fn oldest_actor_weights(&self) -> Option<u64> {
+        self.actors.values().map(|a| a.weights_version).min()
+    }
+
+    pub fn line(&self, updates_per_s: f64) -> String {
+        let actors = self
+            .oldest_actor_weights()
+            .map_or(String::new(), |v| format!(" (actors from v{v})"));
+        format!(
+            "goal grasp success (last 30) {} | {updates_per_s:.1} updates/s | buffer {}/{} | weights v{}{actors}",
+            percent(self.success_last30),
+            self.stored,
+            self.capacity,
+            self.weights_version
+        )
+    }
+}
+
+/// What a finished run says about itself (`<run>/summary.json`).
+#[derive(Debug, Serialize, Deserialize)]
+pub struct Summary {
+    pub run_id: String,
+    pub actors: u32,
+    pub restarts: u32,
+    pub interrupted: bool,
+    pub wall_s: f64,
+    pub buffer: BufferReport,
+    pub learner: LearnerReport,
+    /// The reports of actors that stopped cleanly (a killed one writes none; its steps are
+    /// accounted for by the buffer's per-incarnation counts).
+    pub actors_reports: Vec<ActorReport>,
+}
+
+impl Summary {
+    /// The summary of the run in `dir`, if it wrote one.
+    pub fn read(dir: &RunDir) -> Result<Option<Summary>> {
+        let path = dir.summary();
+        if !path.exists() {
+            return Ok(None);
+        }
+        read_json(&path).map(Some)
+    }
+}
+
+/// A share as a whole percentage, or "-" when there is none yet.
+pub fn percent(share: Option<f64>) -> String {
+    share.map_or("-".into(), |s| format!("{:.0}%", 100.0 * s))
+}

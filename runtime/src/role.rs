@@ -1,0 +1,153 @@
+//! The roles of a run as the launcher and the role processes name them: [`RoleId`] (the
+//! buffer, the learner, or one incarnation of an actor index), what a role process runs
+//! ([`run_role`]), and the entry of a child process (`pushgrasp role`).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use mcaplog::{LogLevel, RunLog};
+use wire::{Message, Outbox, Role, Status, Topic, Transport};
+
+use crate::actor::ActorId;
+use crate::config::RunConfig;
+use crate::run_dir::RunDir;
+use crate::{Lifeline, write_json};
+
+/// One role of a run: its kind ([`Role`]) and, for an actor, which one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RoleId {
+    Buffer,
+    Learner,
+    Actor(ActorId),
+}
+
+impl RoleId {
+    /// The role's name in logs, reports and shared-memory nodes (`actor-<index>-<incarnation>`
+    /// for an actor).
+    pub fn name(self) -> String {
+        match self {
+            RoleId::Actor(id) => format!("{}-{}-{}", Role::Actor, id.index, id.incarnation),
+            other => other.kind().name().into(),
+        }
+    }
+
+    pub fn kind(self) -> Role {
+        match self {
+            RoleId::Buffer => Role::Buffer,
+            RoleId::Learner => Role::Learner,
+            RoleId::Actor(_) => Role::Actor,
+        }
+    }
+}
+
+/// Runs a role to its end and writes its report to the run directory; a failure is also
+/// announced on the status topic, so the launcher can say why.
+pub fn run_role(
+    transport: &dyn Transport,
+    id: RoleId,
+    config: &RunConfig,
+    dir: &RunDir,
+    resume: bool,
+    lifeline: &Lifeline,
+) -> Result<()> {
+    let name = id.name();
+    std::fs::create_dir_all(dir.reports())?;
+    let report = dir.report(&name);
+    let log = open_log(dir, &name, config)?;
+    log.log_line(LogLevel::Info, &format!("{name} started"))?;
+    let result = match id {
+        RoleId::Buffer => crate::buffer::run(transport, config, dir, resume, &log, lifeline)
+            .and_then(|r| write_json(&report, &r)),
+        RoleId::Learner => crate::learner::run(transport, config, dir, resume, &log, lifeline)
+            .and_then(|r| write_json(&report, &r)),
+        RoleId::Actor(actor) => crate::actor::run(transport, config, actor, &log, lifeline)
+            .and_then(|r| write_json(&report, &r)),
+    };
+    match &result {
+        Ok(()) => log.log_line(LogLevel::Info, &format!("{name} stopped"))?,
+        Err(e) => log.log_line(LogLevel::Fatal, &format!("{name} failed: {e:#}"))?,
+    }
+    log.finish()?;
+    if let Err(e) = &result {
+        let failed = Status::Failed {
+            role: id.kind(),
+            error: format!("{e:#}"),
+        };
+        if let Ok(mut status) = Outbox::open(transport, Topic::Status) {
+            let _ = status.send(&Message::Status(failed));
+        }
+    }
+    result
+}
+
+/// A process's MCAP log in the run directory, opened with the run's resolved config.
+pub fn open_log(dir: &RunDir, name: &str, config: &RunConfig) -> Result<RunLog> {
+    if !config.logging.enabled {
+        return Ok(RunLog::disabled(name));
+    }
+    let log = RunLog::create(dir.mcap(name), name)?;
+    let config = BTreeMap::from([("toml".to_string(), toml::to_string(config)?)]);
+    log.metadata("config", &config)?;
+    Ok(log)
+}
+
+/// `pushgrasp role`: one role of a run, started by the launcher (not by hand).
+#[derive(Args)]
+pub struct RoleArgs {
+    /// actor, buffer or learner.
+    pub role: Role,
+    /// The run directory (holds the resolved config.toml).
+    #[arg(long)]
+    pub run_dir: PathBuf,
+    /// The namespace of the run's shared-memory services (the launcher's `shm_namespace`).
+    #[arg(long)]
+    pub shm_namespace: String,
+    #[arg(long)]
+    pub resume: bool,
+    /// The actor's index.
+    #[arg(long, default_value_t = 0)]
+    pub index: u32,
+    /// How many times this actor index was started before.
+    #[arg(long, default_value_t = 0)]
+    pub incarnation: u32,
+}
+
+impl RoleArgs {
+    pub fn id(&self) -> RoleId {
+        match self.role {
+            Role::Buffer => RoleId::Buffer,
+            Role::Learner => RoleId::Learner,
+            Role::Actor => RoleId::Actor(ActorId {
+                index: self.index,
+                incarnation: self.incarnation,
+            }),
+        }
+    }
+}
+
+/// The entry of a child process: the role over shared memory, reports to the run directory.
+pub fn role_process(args: &RoleArgs) -> Result<()> {
+    // Ctrl-C in a terminal reaches the whole process group: the launcher alone decides, and
+    // stops the roles in order through the control topic.
+    signal_hook::flag::register(
+        signal_hook::consts::SIGINT,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .context("installing the signal handler")?;
+    let dir = RunDir::new(&args.run_dir);
+    let config = RunConfig::load(&dir.config())?;
+    let id = args.id();
+    let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name())?;
+    run_role(
+        &transport,
+        id,
+        &config,
+        &dir,
+        args.resume,
+        &Lifeline::child(),
+    )
+}

@@ -1,0 +1,318 @@
+//! Supervision of a run's roles: starting each as a child process (or a thread), noticing
+//! when one exits, restarting a crashed actor as its next incarnation, stopping roles of one
+//! kind in order, and killing what does not stop.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use mcaplog::{LogLevel, RunLog};
+use serde::{Deserialize, Serialize};
+use wire::{ChannelTransport, Control, Message, Outbox, Role};
+
+use crate::actor::ActorId;
+use crate::config::RunConfig;
+use crate::role::{RoleId, run_role};
+use crate::run_dir::RunDir;
+use crate::{Lifeline, write_json};
+
+/// Crashes of one actor index the launcher restarts before it gives up on the run.
+const MAX_RESTARTS: u32 = 10;
+/// How long a role may take to stop once told to.
+const STOP_TIMEOUT: Duration = Duration::from_secs(120);
+
+/// A running role: a child process, or a thread of this one.
+enum Worker {
+    Process(Child),
+    Thread(Option<JoinHandle<Result<()>>>),
+}
+
+impl Worker {
+    /// `None` while it runs; then `Ok` for a clean exit or why it did not exit cleanly.
+    fn finished(&mut self) -> Option<Result<(), String>> {
+        match self {
+            Worker::Process(child) => match child.try_wait() {
+                Ok(None) => None,
+                Ok(Some(status)) if status.success() => Some(Ok(())),
+                Ok(Some(status)) => Some(Err(format!("exited with {status}"))),
+                Err(e) => Some(Err(format!("cannot be waited for: {e}"))),
+            },
+            // Joined once, when it finished; the slot is done after that.
+            Worker::Thread(handle) => handle.take_if(|h| h.is_finished()).map(|h| match h.join() {
+                Ok(Ok(())) => Ok(()),
+                Ok(Err(e)) => Err(format!("{e:#}")),
+                Err(_) => Err("panicked".into()),
+            }),
+        }
+    }
+
+    fn kill(&mut self) {
+        if let Worker::Process(child) = self {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+
+    fn pid(&self) -> Option<u32> {
+        match self {
+            Worker::Process(child) => Some(child.id()),
+            Worker::Thread(_) => None,
+        }
+    }
+}
+
+/// How the launcher starts roles.
+pub enum Wiring {
+    Processes { namespace: String },
+    Threads { transport: ChannelTransport },
+}
+
+struct Slot {
+    spec: RoleId,
+    worker: Worker,
+    /// Set once it exited (cleanly or not) and was dealt with.
+    done: bool,
+}
+
+/// The processes file: which process plays which role (for users and tests).
+#[derive(Serialize, Deserialize)]
+pub struct ProcessEntry {
+    pub role: String,
+    pub pid: u32,
+}
+
+pub struct Supervisor {
+    wiring: Wiring,
+    config: RunConfig,
+    dir: RunDir,
+    resume: bool,
+    slots: Vec<Slot>,
+    /// The launcher's own log.
+    pub log: RunLog,
+    /// Restarts per actor index.
+    crashes: BTreeMap<u32, u32>,
+}
+
+impl Supervisor {
+    pub fn new(wiring: Wiring, config: RunConfig, dir: RunDir, resume: bool, log: RunLog) -> Self {
+        Self {
+            wiring,
+            config,
+            dir,
+            resume,
+            slots: Vec::new(),
+            log,
+            crashes: BTreeMap::new(),
+        }
+    }
+
+    pub fn config(&self) -> &RunConfig {
+        &self.config
+    }
+
+    /// Starts a role: a child process running `pushgrasp role`, or a thread of this one.
+    pub fn start(&mut self, spec: RoleId) -> Result<()> {
+        let worker = match &self.wiring {
+            Wiring::Processes { namespace } => {
+                let mut command = Command::new(std::env::current_exe()?);
+                command
+                    .args(["role", spec.kind().name()])
+                    .arg("--run-dir")
+                    .arg(self.dir.path())
+                    .args(["--shm-namespace", namespace]);
+                if self.resume {
+                    command.arg("--resume");
+                }
+                if let RoleId::Actor(id) = spec {
+                    command
+                        .args(["--index", &id.index.to_string()])
+                        .args(["--incarnation", &id.incarnation.to_string()]);
+                }
+                let log = self.dir.log(&spec.name());
+                let log = std::fs::File::create(&log)
+                    .with_context(|| format!("creating {}", log.display()))?;
+                command
+                    .stdin(Stdio::null())
+                    .stdout(log.try_clone()?)
+                    .stderr(log);
+                Worker::Process(
+                    command
+                        .spawn()
+                        .with_context(|| format!("starting the {}", spec.name()))?,
+                )
+            }
+            Wiring::Threads { transport } => {
+                let (transport, config, dir, resume) = (
+                    transport.clone(),
+                    self.config.clone(),
+                    self.dir.clone(),
+                    self.resume,
+                );
+                let handle = std::thread::Builder::new()
+                    .name(spec.name())
+                    .spawn(move || {
+                        run_role(&transport, spec, &config, &dir, resume, &Lifeline::thread())
+                    })?;
+                Worker::Thread(Some(handle))
+            }
+        };
+        self.log
+            .log_line(LogLevel::Info, &format!("started the {}", spec.name()))?;
+        self.slots.push(Slot {
+            spec,
+            worker,
+            done: false,
+        });
+        self.write_processes()
+    }
+
+    /// The next incarnation of each actor index a resumed run starts: one past any that ran
+    /// before (its report or log names it), so the buffer tells their streams apart.
+    pub fn next_incarnations(&self) -> Result<BTreeMap<u32, u32>> {
+        let mut next = BTreeMap::new();
+        for dir in [self.dir.path().to_path_buf(), self.dir.reports()] {
+            for entry in std::fs::read_dir(&dir)? {
+                let name = entry?.file_name().to_string_lossy().into_owned();
+                let Some(stem) = name
+                    .strip_prefix("actor-")
+                    .and_then(|n| n.split('.').next())
+                else {
+                    continue;
+                };
+                if let Some((index, incarnation)) = stem.split_once('-')
+                    && let (Ok(index), Ok(incarnation)) =
+                        (index.parse(), incarnation.parse::<u32>())
+                {
+                    let slot = next.entry(index).or_insert(0);
+                    *slot = (*slot).max(incarnation + 1);
+                }
+            }
+        }
+        Ok(next)
+    }
+
+    fn write_processes(&self) -> Result<()> {
+        let entries: Vec<ProcessEntry> = self
+            .slots
+            .iter()
+            .filter(|s| !s.done)
+            .filter_map(|s| {
+                s.worker.pid().map(|pid| ProcessEntry {
+                    role: s.spec.name(),
+                    pid,
+                })
+            })
+            .collect();
+        write_json(&self.dir.processes(), &entries)
+    }
+
+    /// Deals with roles that exited: restarts a crashed actor; an exited learner or buffer
+    /// ends the run with its reason.
+    pub fn check(&mut self, failures: &[String]) -> Result<()> {
+        let mut restart = Vec::new();
+        for slot in self.slots.iter_mut().filter(|s| !s.done) {
+            let Some(outcome) = slot.worker.finished() else {
+                continue;
+            };
+            slot.done = true;
+            match slot.spec {
+                RoleId::Actor(id) => {
+                    let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
+                    let message = format!("{} {why}; starting it again", slot.spec.name());
+                    eprintln!("{message}");
+                    self.log.log_line(LogLevel::Warning, &message)?;
+                    restart.push(ActorId {
+                        index: id.index,
+                        incarnation: id.incarnation + 1,
+                    });
+                }
+                spec => {
+                    let log = self.dir.log(&spec.name());
+                    let why = failures
+                        .iter()
+                        .find(|f| f.starts_with(&spec.name()))
+                        .cloned()
+                        .or_else(|| last_error(&log))
+                        .or_else(|| outcome.err())
+                        .unwrap_or_else(|| "exited before it was told to".into());
+                    bail!(
+                        "the {} cannot continue: {why} (see {})",
+                        spec.name(),
+                        log.display()
+                    );
+                }
+            }
+        }
+        for id in restart {
+            let crashes = self.crashes.entry(id.index).or_insert(0);
+            *crashes += 1;
+            if *crashes > MAX_RESTARTS {
+                bail!("actor {} crashed {crashes} times; giving up", id.index);
+            }
+            self.start(RoleId::Actor(id))?;
+        }
+        Ok(())
+    }
+
+    /// Tells one kind of role to stop and waits for every one of them; kills what does not
+    /// stop in time.
+    pub fn stop(&mut self, role: Role, control: &mut Outbox) -> Result<Vec<String>> {
+        control.send(&Message::Control(Control::Stop(role)))?;
+        let deadline = Instant::now() + STOP_TIMEOUT;
+        let mut problems = Vec::new();
+        for slot in self
+            .slots
+            .iter_mut()
+            .filter(|s| !s.done && s.spec.kind() == role)
+        {
+            let outcome = loop {
+                if let Some(outcome) = slot.worker.finished() {
+                    break outcome;
+                }
+                if Instant::now() > deadline {
+                    slot.worker.kill();
+                    break Err(format!(
+                        "did not stop within {STOP_TIMEOUT:?} and was killed"
+                    ));
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            };
+            slot.done = true;
+            if let Err(why) = outcome {
+                problems.push(format!("{} {why}", slot.spec.name()));
+            }
+        }
+        self.write_processes()?;
+        Ok(problems)
+    }
+
+    /// Actor restarts so far.
+    pub fn restarts(&self) -> u32 {
+        self.crashes.values().sum()
+    }
+
+    pub fn kill_all(&mut self) {
+        for slot in self.slots.iter_mut().filter(|s| !s.done) {
+            slot.worker.kill();
+            slot.done = true;
+        }
+    }
+}
+
+/// The error a failed role process printed last (its log's last "Error:" paragraph).
+fn last_error(log: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    let start = text.rfind("Error: ")?;
+    let error = text[start + "Error: ".len()..].trim();
+    // anyhow's backtrace, if any, follows a blank line.
+    Some(
+        error
+            .split("\n\n")
+            .next()
+            .unwrap_or(error)
+            .replace('\n', " "),
+    )
+}
