@@ -83,6 +83,79 @@ struct BufferRole {
 }
 
 impl BufferRole {
+    fn new(config: &RunConfig) -> Result<Self> {
+        let serving = Serving {
+            push_reward: config.push_reward,
+            sampled: config
+                .trained_nets()
+                .iter()
+                .map(|n| n.primitive())
+                .collect(),
+        };
+        Ok(Self {
+            replay: ReplayBuffer::new(config.buffer.clone(), serving)?,
+            report: BufferReport::default(),
+            streams: BTreeMap::new(),
+            requests: VecDeque::new(),
+            rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xb0ff),
+            outcomes: Vec::new(),
+        })
+    }
+
+    /// The replay, counters and open episodes the run directory's snapshot holds.
+    fn restore(&mut self, dir: &RunDir) -> Result<()> {
+        self.replay = ReplayBuffer::load(&dir.snapshot())?;
+        let saved: SavedState = read_json(&dir.buffer_counters())?;
+        self.report = saved.report;
+        self.outcomes = saved.outcomes;
+        let open: BTreeMap<(u32, u32), Vec<u64>> = saved.open.into_iter().collect();
+        for count in &self.report.streams {
+            let key = (count.actor, count.incarnation);
+            let episodes = open.get(&key).cloned().unwrap_or_default();
+            self.streams
+                .insert(key, (count.clone(), episodes.into_iter().collect()));
+        }
+        Ok(())
+    }
+
+    /// Carries out the launcher's orders; whether one stops the buffer.
+    fn obey(&mut self, control: &mut Inbox, inflow: &mut Inflow, dir: &RunDir) -> Result<bool> {
+        let mut stop = false;
+        for message in control.drain()? {
+            match message {
+                Message::Control(Control::Stop(Role::Actor)) => inflow.actors_stopped = true,
+                Message::Control(Control::Stop(Role::Buffer)) => stop = true,
+                Message::Control(Control::Snapshot) => self.save(dir)?,
+                _ => {}
+            }
+        }
+        Ok(stop)
+    }
+
+    /// Queues the learner's sample requests and applies its priority updates; whether any
+    /// came.
+    fn take_requests(&mut self, requests: &mut Inbox) -> Result<bool> {
+        let messages = requests.drain()?;
+        for message in &messages {
+            match message {
+                Message::SampleRequest(request) => self.requests.push_back(*request),
+                Message::PriorityUpdate(update) => {
+                    self.replay.update_priorities(&update.updates)?;
+                    self.report.priority_updates += 1;
+                }
+                other => bail!("the requests topic carried {other:?}"),
+            }
+        }
+        Ok(!messages.is_empty())
+    }
+
+    /// The status to the launcher, the counters to the log.
+    fn report_to(&mut self, status: &mut Outbox, log: &RunLog) -> Result<()> {
+        status.send(&Message::Status(self.status()))?;
+        log.json(BUFFER_STATS, &self.report)?;
+        Ok(())
+    }
+
     /// Checks a message's place in its sender's stream; a new incarnation of an actor
     /// flushes what its predecessors left open.
     fn arrive(&mut self, origin: Origin) -> Result<&mut (StreamCount, BTreeSet<u64>)> {
@@ -251,75 +324,99 @@ pub fn run(
     log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<BufferReport> {
-    let mut role = BufferRole {
-        replay: ReplayBuffer::new(
-            config.buffer.clone(),
-            Serving {
-                push_reward: config.push_reward,
-                sampled: config
-                    .trained_nets()
-                    .iter()
-                    .map(|n| n.primitive())
-                    .collect(),
-            },
-        )?,
-        report: BufferReport::default(),
-        streams: BTreeMap::new(),
-        requests: VecDeque::new(),
-        rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xb0ff),
-        outcomes: Vec::new(),
-    };
+    let mut role = BufferRole::new(config)?;
     if resume && dir.snapshot().exists() {
-        role.replay = ReplayBuffer::load(&dir.snapshot())?;
-        let saved: SavedState = read_json(&dir.buffer_counters())?;
-        role.report = saved.report;
-        role.outcomes = saved.outcomes;
-        let open: BTreeMap<(u32, u32), Vec<u64>> = saved.open.into_iter().collect();
-        for count in &role.report.streams {
-            let key = (count.actor, count.incarnation);
-            let episodes = open.get(&key).cloned().unwrap_or_default();
-            role.streams
-                .insert(key, (count.clone(), episodes.into_iter().collect()));
-        }
+        role.restore(dir)?;
     }
-    let mut steps = Inbox::open(transport, Topic::Steps)?;
-    let mut requests = Inbox::open(transport, Topic::Requests)?;
-    let mut control = Inbox::open(transport, Topic::Control)?;
-    let mut batches = Outbox::open(transport, Topic::Batches)?;
-    let mut status = Outbox::open(transport, Topic::Status)?;
+    let mut ports = Ports::open(transport)?;
     // The first report says the buffer listens: the launcher starts actors only then.
-    status.send(&Message::Status(role.status()))?;
-
-    // A round of steps: what every actor can have waiting in the transport, and one more.
-    let round = (Topic::Steps.buffer() + 1) * config.actors.max(1) as usize;
-    let mut staged: VecDeque<Message> = VecDeque::with_capacity(round);
-    let mut actors_stopped = false;
+    ports.status.send(&Message::Status(role.status()))?;
+    let mut inflow = Inflow::new(config.actors);
     let mut last_status = Instant::now();
     loop {
-        let mut busy = false;
-        let mut stop = false;
-        for message in control.drain()? {
-            match message {
-                Message::Control(Control::Stop(Role::Actor)) => actors_stopped = true,
-                Message::Control(Control::Stop(Role::Buffer)) => stop = true,
-                Message::Control(Control::Snapshot) => role.save(dir)?,
-                _ => {}
-            }
+        let stop = role.obey(&mut ports.control, &mut inflow, dir)?;
+        let mut busy = inflow.take(&mut ports.steps, &mut role, log, stop)?;
+        if stop || lifeline.lost() {
+            break;
         }
-        // Back-pressure: steps wait in the transport while the learner lags behind, except
-        // when the actors are stopping (what they send must arrive). They are taken in
-        // rounds, all that every actor has waiting, then let in as the rate limiter allows:
-        // iceoryx2 hands out the first publisher's messages first, so taking one at a time
-        // would let in only one actor's steps whenever the learner sets the pace.
-        while actors_stopped || stop || role.replay.can_insert(1) {
-            if staged.is_empty() {
-                while staged.len() < round
+        busy |= role.take_requests(&mut ports.requests)?;
+        busy |= role.serve(&mut ports.batches)?;
+        if last_status.elapsed() >= STATUS_EVERY {
+            role.report_to(&mut ports.status, log)?;
+            last_status = Instant::now();
+        }
+        if !busy {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    role.save(dir)?;
+    role.report_to(&mut ports.status, log)?;
+    Ok(role.report)
+}
+
+/// The buffer's ends of the run's topics.
+struct Ports {
+    steps: Inbox,
+    requests: Inbox,
+    control: Inbox,
+    batches: Outbox,
+    status: Outbox,
+}
+
+impl Ports {
+    fn open(transport: &dyn Transport) -> Result<Self> {
+        Ok(Self {
+            steps: Inbox::open(transport, Topic::Steps)?,
+            requests: Inbox::open(transport, Topic::Requests)?,
+            control: Inbox::open(transport, Topic::Control)?,
+            batches: Outbox::open(transport, Topic::Batches)?,
+            status: Outbox::open(transport, Topic::Status)?,
+        })
+    }
+}
+
+/// How steps come in. Back-pressure: steps wait in the transport while the learner lags
+/// behind, except when the actors are stopping (what they send must arrive). They are taken
+/// in rounds, all that every actor has waiting, then let in as the rate limiter allows:
+/// iceoryx2 hands out the first publisher's messages first, so taking one at a time would
+/// let in only one actor's steps whenever the learner sets the pace.
+struct Inflow {
+    /// A round: what every actor can have waiting in the transport, and one more.
+    round: usize,
+    staged: VecDeque<Message>,
+    /// The launcher told the actors to stop: let everything in.
+    actors_stopped: bool,
+}
+
+impl Inflow {
+    fn new(actors: u32) -> Self {
+        let round = (Topic::Steps.buffer() + 1) * actors.max(1) as usize;
+        Self {
+            round,
+            staged: VecDeque::with_capacity(round),
+            actors_stopped: false,
+        }
+    }
+
+    /// Takes in steps and episode ends while the rate limiter allows (all of them when
+    /// stopping); whether any came.
+    fn take(
+        &mut self,
+        steps: &mut Inbox,
+        role: &mut BufferRole,
+        log: &RunLog,
+        stopping: bool,
+    ) -> Result<bool> {
+        let mut busy = false;
+        while self.actors_stopped || stopping || role.replay.can_insert(1) {
+            if self.staged.is_empty() {
+                while self.staged.len() < self.round
                     && let Some(message) = steps.try_recv()?
                 {
-                    staged.push_back(message);
+                    self.staged.push_back(message);
                 }
             }
-            match staged.pop_front() {
+            match self.staged.pop_front() {
                 Some(Message::Step(step)) => role.step(step)?,
                 Some(Message::EpisodeEnd(end)) => {
                     log.json(BUFFER_EPISODE, &end)?;
@@ -330,32 +427,6 @@ pub fn run(
             }
             busy = true;
         }
-        if stop || lifeline.lost() {
-            break;
-        }
-        for message in requests.drain()? {
-            busy = true;
-            match message {
-                Message::SampleRequest(request) => role.requests.push_back(request),
-                Message::PriorityUpdate(update) => {
-                    role.replay.update_priorities(&update.updates)?;
-                    role.report.priority_updates += 1;
-                }
-                other => bail!("the requests topic carried {other:?}"),
-            }
-        }
-        busy |= role.serve(&mut batches)?;
-        if last_status.elapsed() >= STATUS_EVERY {
-            status.send(&Message::Status(role.status()))?;
-            log.json(BUFFER_STATS, &role.report)?;
-            last_status = Instant::now();
-        }
-        if !busy {
-            std::thread::sleep(Duration::from_millis(1));
-        }
+        Ok(busy)
     }
-    role.save(dir)?;
-    status.send(&Message::Status(role.status()))?;
-    log.json(BUFFER_STATS, &role.report)?;
-    Ok(role.report)
 }

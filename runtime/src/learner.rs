@@ -65,6 +65,98 @@ fn sample(transition: &Transition, weight: f32, gamma: f32) -> Sample {
     }
 }
 
+/// Trains until the launcher says stop; checkpoints and returns what it did. With `resume`,
+/// starts from the run directory's checkpoint.
+pub fn run(
+    transport: &dyn Transport,
+    config: &RunConfig,
+    dir: &RunDir,
+    resume: bool,
+    log: &RunLog,
+    lifeline: &Lifeline,
+) -> Result<LearnerReport> {
+    let mut role = LearnerRole::new(config, log, dir);
+    role.start_from(resume)?;
+    let mut ports = Ports::open(transport)?;
+    role.publish(&mut ports.weights)?;
+    let mut asked = Requests::default();
+    let mut last_status = Instant::now();
+    while !lifeline.lost() && !stop_requested(&mut ports.control, Role::Learner)? {
+        asked.keep_in_flight(&mut ports.requests, config)?;
+        match ports.batches.try_recv()? {
+            Some(Message::Batch(batch)) => {
+                asked.answered(&batch)?;
+                role.learn(&batch, &mut ports)?;
+            }
+            Some(other) => bail!("the batches topic carried {other:?}"),
+            None => std::thread::sleep(Duration::from_millis(1)),
+        }
+        if last_status.elapsed() >= STATUS_EVERY {
+            // Actors that joined since the last broadcast get the newest weights now, not
+            // only at the next one.
+            ports.weights.refresh()?;
+            ports.status.send(&role.status())?;
+            last_status = Instant::now();
+        }
+    }
+    role.finish(&mut ports.status)
+}
+
+/// The learner's ends of the run's topics.
+struct Ports {
+    control: Inbox,
+    batches: Inbox,
+    requests: Outbox,
+    weights: Outbox,
+    status: Outbox,
+}
+
+impl Ports {
+    fn open(transport: &dyn Transport) -> Result<Self> {
+        Ok(Self {
+            control: Inbox::open(transport, Topic::Control)?,
+            batches: Inbox::open(transport, Topic::Batches)?,
+            requests: Outbox::open(transport, Topic::Requests)?,
+            weights: Outbox::open(transport, Topic::Weights)?,
+            status: Outbox::open(transport, Topic::Status)?,
+        })
+    }
+}
+
+/// The sample requests sent and not yet answered, oldest first.
+#[derive(Default)]
+struct Requests {
+    next: u64,
+    in_flight: VecDeque<u64>,
+}
+
+impl Requests {
+    /// Asks for batches until [`IN_FLIGHT`] are on their way, taking the stage's trained
+    /// nets' primitives in turn.
+    fn keep_in_flight(&mut self, requests: &mut Outbox, config: &RunConfig) -> Result<()> {
+        let nets = config.trained_nets();
+        while self.in_flight.len() < IN_FLIGHT {
+            let request = SampleRequest {
+                id: self.next,
+                primitive: nets[self.next as usize % nets.len()].primitive(),
+                size: config.learner.batch_size,
+            };
+            requests.send(&Message::SampleRequest(request))?;
+            self.in_flight.push_back(request.id);
+            self.next += 1;
+        }
+        Ok(())
+    }
+
+    /// Checks that `batch` answers the oldest request.
+    fn answered(&mut self, batch: &BatchMessage) -> Result<()> {
+        if self.in_flight.pop_front() != Some(batch.request) {
+            bail!("the buffer answered request {} out of order", batch.request);
+        }
+        Ok(())
+    }
+}
+
 struct LearnerRole<'a> {
     config: &'a RunConfig,
     log: &'a RunLog,
@@ -72,12 +164,94 @@ struct LearnerRole<'a> {
     checkpoint: Checkpoint,
     /// Updates before this process started (from the checkpoint resumed).
     updates_before: u64,
+    /// When the first batch arrived.
+    first_batch: Option<Instant>,
     report: LearnerReport,
 }
 
-impl LearnerRole<'_> {
+impl<'a> LearnerRole<'a> {
+    /// Fresh nets from the run's seed.
+    fn new(config: &'a RunConfig, log: &'a RunLog, dir: &RunDir) -> Self {
+        let device = qnet::Backend::selected().device();
+        // The initial weights come from the backend's generator.
+        device.seed(config.seed);
+        let nets = QNets::new(&config.net, &device);
+        let trainer = Trainer::new(
+            nets,
+            &config.net,
+            config.side(),
+            &config.learning,
+            config.trained_nets()[0],
+            &device,
+        );
+        Self {
+            config,
+            log,
+            trainer,
+            checkpoint: Checkpoint::at(dir.checkpoint()),
+            updates_before: 0,
+            first_batch: None,
+            report: LearnerReport::default(),
+        }
+    }
+
+    /// Continues from the run's checkpoint when resuming one that has it, else starts from
+    /// `init_from`'s nets (an earlier stage's) if the config names them.
+    fn start_from(&mut self, resume: bool) -> Result<()> {
+        let config = self.config;
+        if resume && self.checkpoint.dir().join("manifest.toml").exists() {
+            let saved = self.checkpoint.load(&config_hash(&config.net))?;
+            let manifest = &saved.manifest;
+            if manifest.stage != config.stage || manifest.side != config.side() {
+                bail!(
+                    "{}: the checkpoint is of stage {} at {} px; this run is stage {} at {} px",
+                    self.checkpoint.dir().display(),
+                    manifest.stage,
+                    manifest.side,
+                    config.stage,
+                    config.side()
+                );
+            }
+            self.trainer.resume(&saved)?;
+            self.updates_before = manifest.updates;
+        } else if let Some(init) = &config.init_from {
+            // An earlier stage's nets: its weights, this stage's fresh update count.
+            let saved = Checkpoint::at(init).load(&config_hash(&config.net))?;
+            if saved.manifest.side != config.side() {
+                bail!(
+                    "init_from {}: the nets were trained at {} px; this run is at {} px",
+                    init.display(),
+                    saved.manifest.side,
+                    config.side()
+                );
+            }
+            self.trainer.load_weights(&saved.weights)?;
+        }
+        Ok(())
+    }
+
     fn updates(&self) -> u64 {
         self.trainer.updates()
+    }
+
+    /// One update on `batch` (none for an empty one), its priorities back to the buffer,
+    /// and the weights and checkpoint when their turn comes.
+    fn learn(&mut self, batch: &BatchMessage, ports: &mut Ports) -> Result<()> {
+        if batch.items.is_empty() {
+            self.report.empty_batches += 1;
+            return Ok(());
+        }
+        self.first_batch.get_or_insert_with(Instant::now);
+        let priorities = self.train(batch)?;
+        ports.requests.send(&Message::PriorityUpdate(priorities))?;
+        let updates = self.updates();
+        if updates.is_multiple_of(self.config.learner.publish_every) {
+            self.publish(&mut ports.weights)?;
+        }
+        if updates.is_multiple_of(self.config.learner.checkpoint_every) {
+            self.save_checkpoint()?;
+        }
+        Ok(())
     }
 
     fn publish(&mut self, weights: &mut Outbox) -> Result<()> {
@@ -155,131 +329,22 @@ impl LearnerRole<'_> {
                 .collect(),
         })
     }
-}
 
-/// Trains until the launcher says stop; checkpoints and returns what it did. With `resume`,
-/// starts from the run directory's checkpoint.
-pub fn run(
-    transport: &dyn Transport,
-    config: &RunConfig,
-    dir: &RunDir,
-    resume: bool,
-    log: &RunLog,
-    lifeline: &Lifeline,
-) -> Result<LearnerReport> {
-    let device = qnet::Backend::selected().device();
-    // The initial weights come from the backend's generator.
-    device.seed(config.seed);
-    let nets = QNets::new(&config.net, &device);
-    let mut role = LearnerRole {
-        config,
-        log,
-        trainer: Trainer::new(
-            nets,
-            &config.net,
-            config.side(),
-            &config.learning,
-            config.trained_nets()[0],
-            &device,
-        ),
-        checkpoint: Checkpoint::at(dir.checkpoint()),
-        updates_before: 0,
-        report: LearnerReport::default(),
-    };
-    if resume && role.checkpoint.dir().join("manifest.toml").exists() {
-        let saved = role.checkpoint.load(&config_hash(&config.net))?;
-        let manifest = &saved.manifest;
-        if manifest.stage != config.stage || manifest.side != config.side() {
-            bail!(
-                "{}: the checkpoint is of stage {} at {} px; this run is stage {} at {} px",
-                role.checkpoint.dir().display(),
-                manifest.stage,
-                manifest.side,
-                config.stage,
-                config.side()
-            );
-        }
-        role.trainer.resume(&saved)?;
-        role.updates_before = manifest.updates;
-    } else if let Some(init) = &config.init_from {
-        // An earlier stage's nets: its weights, this stage's fresh update count.
-        let saved = Checkpoint::at(init).load(&config_hash(&config.net))?;
-        if saved.manifest.side != config.side() {
-            bail!(
-                "init_from {}: the nets were trained at {} px; this run is at {} px",
-                init.display(),
-                saved.manifest.side,
-                config.side()
-            );
-        }
-        role.trainer.load_weights(&saved.weights)?;
+    fn status(&self) -> Message {
+        Message::Status(Status::Learner {
+            updates: self.updates(),
+            weights_version: self.report.weights_version,
+            loss: self.report.last_loss,
+        })
     }
-    let mut control = Inbox::open(transport, Topic::Control)?;
-    let mut batches = Inbox::open(transport, Topic::Batches)?;
-    let mut requests = Outbox::open(transport, Topic::Requests)?;
-    let mut weights = Outbox::open(transport, Topic::Weights)?;
-    let mut status = Outbox::open(transport, Topic::Status)?;
-    role.publish(&mut weights)?;
 
-    let nets = config.trained_nets();
-    let mut next_request = 0u64;
-    let mut in_flight = VecDeque::new();
-    let mut last_status = Instant::now();
-    let mut first_batch = None;
-    while !lifeline.lost() && !stop_requested(&mut control, Role::Learner)? {
-        while in_flight.len() < IN_FLIGHT {
-            let request = SampleRequest {
-                id: next_request,
-                primitive: nets[next_request as usize % nets.len()].primitive(),
-                size: config.learner.batch_size,
-            };
-            requests.send(&Message::SampleRequest(request))?;
-            in_flight.push_back(request.id);
-            next_request += 1;
-        }
-        match batches.try_recv()? {
-            Some(Message::Batch(batch)) => {
-                if in_flight.pop_front() != Some(batch.request) {
-                    bail!("the buffer answered request {} out of order", batch.request);
-                }
-                if batch.items.is_empty() {
-                    role.report.empty_batches += 1;
-                } else {
-                    first_batch.get_or_insert_with(Instant::now);
-                    let priorities = role.train(&batch)?;
-                    requests.send(&Message::PriorityUpdate(priorities))?;
-                    let updates = role.updates();
-                    if updates.is_multiple_of(config.learner.publish_every) {
-                        role.publish(&mut weights)?;
-                    }
-                    if updates.is_multiple_of(config.learner.checkpoint_every) {
-                        role.save_checkpoint()?;
-                    }
-                }
-            }
-            Some(other) => bail!("the batches topic carried {other:?}"),
-            None => std::thread::sleep(Duration::from_millis(1)),
-        }
-        if last_status.elapsed() >= STATUS_EVERY {
-            // Actors that joined since the last broadcast get the newest weights now, not
-            // only at the next one.
-            weights.refresh()?;
-            status.send(&Message::Status(Status::Learner {
-                updates: role.updates(),
-                weights_version: role.report.weights_version,
-                loss: role.report.last_loss,
-            }))?;
-            last_status = Instant::now();
-        }
+    /// The last checkpoint, the last report to the launcher, and what this process did.
+    fn finish(mut self, status: &mut Outbox) -> Result<LearnerReport> {
+        self.save_checkpoint()?;
+        self.report.updates = self.updates();
+        self.report.session_updates = self.updates() - self.updates_before;
+        self.report.training_s = self.first_batch.map_or(0.0, |t| t.elapsed().as_secs_f64());
+        status.send(&self.status())?;
+        Ok(self.report)
     }
-    role.save_checkpoint()?;
-    role.report.updates = role.updates();
-    role.report.session_updates = role.trainer.updates() - role.updates_before;
-    role.report.training_s = first_batch.map_or(0.0, |t| t.elapsed().as_secs_f64());
-    status.send(&Message::Status(Status::Learner {
-        updates: role.report.updates,
-        weights_version: role.report.weights_version,
-        loss: role.report.last_loss,
-    }))?;
-    Ok(role.report)
 }

@@ -1,0 +1,173 @@
+//! Steps on their way to the buffer: a step waits ([`Pending`]) until the next decision in
+//! its scene gives its label's next value (and a push's reward the goal's grasp Q after it),
+//! then travels with its actor's initial priority ([`Shipper`]), logged as it goes.
+
+use anyhow::Result;
+use experience::Transition;
+use mcaplog::RunLog;
+use policy::{Decision, PushReward, grasp_label, grasp_reward, push_label};
+use sim::Primitive;
+use wire::{EpisodeEnd, Message, Origin, Outbox, Step};
+
+use crate::config::RunConfig;
+use crate::record::{ACTOR_EPISODE, ACTOR_STEP, EpisodeRecord, StepRecord};
+
+/// A step waiting for the next decision.
+pub(super) struct Pending {
+    pub(super) transition: Transition,
+    pub(super) decision: Decision,
+    /// For a push: its reward needs the goal's grasp Q after it; the change around the goal
+    /// is known at once.
+    pub(super) push_changed: Option<sim::measure::ChangeReport>,
+    /// For a grasp: the episode it ends.
+    pub(super) ends: Option<EpisodeEnd>,
+    /// The scene the episode played on.
+    pub(super) scene_seed: u64,
+    /// When the pictures of this step were logged, if they were.
+    pub(super) pictures_ns: Option<u64>,
+}
+
+pub(super) struct Shipper<'a> {
+    pub(super) log: &'a RunLog,
+    pub(super) outbox: Outbox,
+    pub(super) origin: Origin,
+    pub(super) gamma: f32,
+    pub(super) push_reward: PushReward,
+    pub(super) weights_version: u64,
+    pub(super) steps_sent: u64,
+}
+
+impl Pending {
+    /// A grasp's step, which ends its episode: scored with the grasp reward.
+    pub(super) fn grasp(
+        mut transition: Transition,
+        decision: Decision,
+        origin: Origin,
+        trial: bool,
+        scene_seed: u64,
+        pictures_ns: Option<u64>,
+    ) -> Self {
+        transition.reward = grasp_reward(transition.grasped, transition.goal);
+        Self {
+            ends: Some(EpisodeEnd {
+                // Stamped when sent.
+                origin,
+                episode: transition.episode,
+                goal: transition.goal,
+                grasped: transition.grasped,
+                steps: transition.step + 1,
+                trial,
+            }),
+            transition,
+            decision,
+            push_changed: None,
+            scene_seed,
+            pictures_ns,
+        }
+    }
+}
+
+impl<'a> Shipper<'a> {
+    pub(super) fn new(log: &'a RunLog, outbox: Outbox, origin: Origin, config: &RunConfig) -> Self {
+        Self {
+            log,
+            outbox,
+            origin,
+            gamma: config.learning.gamma,
+            push_reward: config.push_reward,
+            weights_version: 0,
+            steps_sent: 0,
+        }
+    }
+
+    pub(super) fn next_origin(&mut self) -> Origin {
+        let origin = self.origin;
+        self.origin.seq += 1;
+        origin
+    }
+
+    /// Completes a pending step with the next state's values and sends it (and the end of
+    /// its episode). `next`: the next decision in the same scene, `None` if the scene ended.
+    pub(super) fn ship(&mut self, mut pending: Pending, next: Option<&Decision>) -> Result<()> {
+        let t = &mut pending.transition;
+        let (label, next_value) = match t.action.primitive {
+            Primitive::Grasp => {
+                let next_value = next.map(|d| d.goal_grasp_q);
+                let succeeded = t.goal_grasped();
+                (
+                    grasp_label(t.reward, succeeded, next_value, self.gamma),
+                    next_value,
+                )
+            }
+            Primitive::Push => {
+                let change = pending
+                    .push_changed
+                    .as_ref()
+                    .expect("pushes carry a change");
+                let before = pending.decision.goal_grasp_q;
+                // Not reached without a next decision (episodes end with a grasp); then only
+                // the change counts.
+                let after = next.map_or(before, |d| d.goal_grasp_q);
+                t.reward = self.push_reward.reward(before, after, change);
+                let next_value = next.map(|d| d.state_value());
+                (push_label(t.reward, next_value, self.gamma), next_value)
+            }
+        };
+        t.next_value = next_value;
+        let d = &pending.decision;
+        let step = Step {
+            origin: self.next_origin(),
+            priority: f64::from((label - d.predicted_q).abs()),
+            predicted_q: d.predicted_q,
+            explored: d.explored,
+            weights_version: self.weights_version,
+            transition: pending.transition,
+        };
+        let t = &step.transition;
+        let record = StepRecord {
+            actor: step.origin.actor,
+            incarnation: step.origin.incarnation,
+            episode: t.episode,
+            step: t.step,
+            goal: t.goal,
+            primitive: format!("{:?}", t.action.primitive).to_lowercase(),
+            rotation: t.action.rotation,
+            angle_deg: t.action.angle().to_degrees(),
+            row: t.action.row,
+            col: t.action.col,
+            predicted_q: d.predicted_q,
+            goal_grasp_q: d.goal_grasp_q,
+            explored: d.explored,
+            reason: format!("{:?}", d.reason),
+            reward: t.reward,
+            grasped: t.grasped,
+            priority: step.priority,
+            weights_version: self.weights_version,
+            pictures_ns: pending.pictures_ns,
+        };
+        self.outbox.send(&Message::Step(step))?;
+        self.steps_sent += 1;
+        self.log.json(ACTOR_STEP, &record)?;
+        if let Some(mut end) = pending.ends {
+            end.origin = self.next_origin();
+            self.outbox.send(&Message::EpisodeEnd(end.clone()))?;
+            if end.trial {
+                return Ok(());
+            }
+            self.log.json(
+                ACTOR_EPISODE,
+                &EpisodeRecord {
+                    actor: end.origin.actor,
+                    incarnation: end.origin.incarnation,
+                    episode: end.episode,
+                    scene_seed: pending.scene_seed,
+                    goal: end.goal,
+                    grasped: end.grasped,
+                    goal_grasped: end.goal_grasped(),
+                    steps: end.steps,
+                },
+            )?;
+        }
+        Ok(())
+    }
+}
