@@ -3,7 +3,6 @@
 //! checkpoints, then the buffer, which takes the last steps and snapshots) when the budget
 //! is reached, on Ctrl-C, or when the learner or the buffer fails.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -11,14 +10,13 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use mcaplog::LogLevel;
 use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
 use crate::config::RunConfig;
-use crate::progress::{Progress, Summary, percent};
-use crate::record::{LAUNCHER_PROGRESS, LAUNCHER_SUMMARY};
+use crate::progress::{Display, Progress, Summary, percent};
+use crate::record::LAUNCHER_SUMMARY;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
 use crate::supervisor::{Supervisor, Wiring};
@@ -342,84 +340,6 @@ fn stop_in_order(supervisor: &mut Supervisor, control: &mut Outbox) -> Result<()
         eprintln!("while stopping: {problem}");
     }
     Ok(())
-}
-
-/// The progress a person sees: a bar on a terminal, else a line every 10 s; and the
-/// launcher's log of it every second.
-struct Display {
-    bar: Option<ProgressBar>,
-    episodes: u64,
-    start: Instant,
-    last_print: Instant,
-    last_logged: Instant,
-    /// Updates counted at `rate_at`, for the rate over the last two seconds.
-    rate_updates: u64,
-    rate_at: Instant,
-    updates_per_s: f64,
-}
-
-impl Display {
-    fn new(episodes: u64, start: Instant) -> Self {
-        let bar = std::io::stderr().is_terminal().then(|| {
-            let bar = ProgressBar::new(episodes);
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{elapsed_precise} [{bar:30}] {pos}/{len} episodes | {msg}",
-                )
-                .expect("a valid template")
-                .progress_chars("=> "),
-            );
-            bar
-        });
-        let now = Instant::now();
-        Self {
-            bar,
-            episodes,
-            start,
-            last_print: now,
-            last_logged: now,
-            rate_updates: 0,
-            rate_at: now,
-            updates_per_s: 0.0,
-        }
-    }
-
-    fn show(&mut self, progress: &Progress, supervisor: &Supervisor) -> Result<()> {
-        if self.rate_at.elapsed() >= Duration::from_secs(2) {
-            let done = progress.updates - self.rate_updates.min(progress.updates);
-            self.updates_per_s = done as f64 / self.rate_at.elapsed().as_secs_f64();
-            self.rate_updates = progress.updates;
-            self.rate_at = Instant::now();
-        }
-        if self.last_logged.elapsed() >= Duration::from_secs(1) {
-            supervisor.log.json(LAUNCHER_PROGRESS, progress)?;
-            self.last_logged = Instant::now();
-        }
-        let line = progress.line(self.updates_per_s);
-        match &self.bar {
-            Some(bar) => {
-                bar.set_position(progress.episodes);
-                bar.set_message(format!("{line} | restarts {}", supervisor.restarts()));
-            }
-            None if self.last_print.elapsed() >= Duration::from_secs(10) => {
-                println!(
-                    "{:7.1} s  episodes {}/{}  {line}",
-                    self.start.elapsed().as_secs_f64(),
-                    progress.episodes,
-                    self.episodes
-                );
-                self.last_print = Instant::now();
-            }
-            None => {}
-        }
-        Ok(())
-    }
-
-    fn finish(self) {
-        if let Some(bar) = self.bar {
-            bar.finish();
-        }
-    }
 }
 
 fn default_run_id(stage: u8) -> String {

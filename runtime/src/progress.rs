@@ -1,9 +1,13 @@
 //! What the launcher knows of a run while it goes ([`Progress`], from every role's status
-//! reports) and what it says of it at the end ([`Summary`]).
+//! reports), how it shows it ([`Display`]), and what it says of the run at the end
+//! ([`Summary`]).
 
 use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::time::{Duration, Instant};
 
 use anyhow::Result;
+use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 use wire::Status;
 
@@ -11,7 +15,9 @@ use crate::actor::ActorReport;
 use crate::buffer::BufferReport;
 use crate::learner::LearnerReport;
 use crate::read_json;
+use crate::record::LAUNCHER_PROGRESS;
 use crate::run_dir::RunDir;
+use crate::supervisor::Supervisor;
 
 /// What the launcher saw of the run, from the roles' status reports.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -140,4 +146,82 @@ impl Summary {
 /// A share as a whole percentage, or "-" when there is none yet.
 pub fn percent(share: Option<f64>) -> String {
     share.map_or("-".into(), |s| format!("{:.0}%", 100.0 * s))
+}
+
+/// The progress a person sees: a bar on a terminal, else a line every 10 s; and the
+/// launcher's log of it every second.
+pub struct Display {
+    bar: Option<ProgressBar>,
+    episodes: u64,
+    start: Instant,
+    last_print: Instant,
+    last_logged: Instant,
+    /// Updates counted at `rate_at`, for the rate over the last two seconds.
+    rate_updates: u64,
+    rate_at: Instant,
+    updates_per_s: f64,
+}
+
+impl Display {
+    pub fn new(episodes: u64, start: Instant) -> Self {
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let bar = ProgressBar::new(episodes);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:30}] {pos}/{len} episodes | {msg}",
+                )
+                .expect("a valid template")
+                .progress_chars("=> "),
+            );
+            bar
+        });
+        let now = Instant::now();
+        Self {
+            bar,
+            episodes,
+            start,
+            last_print: now,
+            last_logged: now,
+            rate_updates: 0,
+            rate_at: now,
+            updates_per_s: 0.0,
+        }
+    }
+
+    pub fn show(&mut self, progress: &Progress, supervisor: &Supervisor) -> Result<()> {
+        if self.rate_at.elapsed() >= Duration::from_secs(2) {
+            let done = progress.updates - self.rate_updates.min(progress.updates);
+            self.updates_per_s = done as f64 / self.rate_at.elapsed().as_secs_f64();
+            self.rate_updates = progress.updates;
+            self.rate_at = Instant::now();
+        }
+        if self.last_logged.elapsed() >= Duration::from_secs(1) {
+            supervisor.log.json(LAUNCHER_PROGRESS, progress)?;
+            self.last_logged = Instant::now();
+        }
+        let line = progress.line(self.updates_per_s);
+        match &self.bar {
+            Some(bar) => {
+                bar.set_position(progress.episodes);
+                bar.set_message(format!("{line} | restarts {}", supervisor.restarts()));
+            }
+            None if self.last_print.elapsed() >= Duration::from_secs(10) => {
+                println!(
+                    "{:7.1} s  episodes {}/{}  {line}",
+                    self.start.elapsed().as_secs_f64(),
+                    progress.episodes,
+                    self.episodes
+                );
+                self.last_print = Instant::now();
+            }
+            None => {}
+        }
+        Ok(())
+    }
+
+    pub fn finish(self) {
+        if let Some(bar) = self.bar {
+            bar.finish();
+        }
+    }
 }

@@ -1,14 +1,8 @@
-//! The buffer role: receives every actor's steps, assembles and relabels episodes into the
-//! prioritised replay, answers the learner's sample requests and applies its priority
-//! updates, and snapshots on request and at shutdown.
-//!
-//! Every message on the steps topic carries its sender's sequence number, so the buffer
-//! proves the transport lost nothing: per actor incarnation, what arrived is exactly 0..n.
-//! When an actor index comes back as a new incarnation (its process was restarted), the
-//! episodes the old one left open are stored as they are.
+//! The buffer role's state: the replay, each actor incarnation's stream, the learner's
+//! requests waiting, every episode's outcome; what each message does to it, and how it is
+//! saved beside the replay's snapshot.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use buffer::{ReplayBuffer, Serving};
@@ -18,13 +12,13 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use wire::{
     BatchMessage, Control, EpisodeEnd, Inbox, Message, Origin, Outbox, Role, SampleRequest, Status,
-    Step, Topic, Transport,
+    Step,
 };
 
-use super::config::RunConfig;
-use super::record::{BUFFER_EPISODE, BUFFER_STATS};
-use super::run_dir::RunDir;
-use super::{Lifeline, STATUS_EVERY, SUCCESS_WINDOW, read_json, write_json};
+use crate::config::RunConfig;
+use crate::record::BUFFER_STATS;
+use crate::run_dir::RunDir;
+use crate::{SUCCESS_WINDOW, read_json, write_json};
 
 /// What one actor incarnation's stream delivered.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -71,19 +65,28 @@ fn success(outcomes: &[bool]) -> Option<f64> {
         .then(|| outcomes.iter().filter(|&&s| s).count() as f64 / outcomes.len() as f64)
 }
 
-struct BufferRole {
-    replay: ReplayBuffer,
-    report: BufferReport,
+/// The launcher's stop orders read in one go.
+#[derive(Default)]
+pub(super) struct Orders {
+    /// The buffer stops now.
+    pub(super) stop: bool,
+    /// The actors are stopping: everything they send must be let in.
+    pub(super) actors_stopped: bool,
+}
+
+pub(super) struct BufferRole {
+    pub(super) replay: ReplayBuffer,
+    pub(super) report: BufferReport,
     /// Per (actor, incarnation): its stream position and its episodes still open.
-    streams: BTreeMap<(u32, u32), (StreamCount, BTreeSet<u64>)>,
-    requests: VecDeque<SampleRequest>,
-    rng: ChaCha8Rng,
+    pub(super) streams: BTreeMap<(u32, u32), (StreamCount, BTreeSet<u64>)>,
+    pub(super) requests: VecDeque<SampleRequest>,
+    pub(super) rng: ChaCha8Rng,
     /// Every episode's outcome in arrival order (true: the goal was grasped).
-    outcomes: Vec<bool>,
+    pub(super) outcomes: Vec<bool>,
 }
 
 impl BufferRole {
-    fn new(config: &RunConfig) -> Result<Self> {
+    pub(super) fn new(config: &RunConfig) -> Result<Self> {
         let serving = Serving {
             push_reward: config.push_reward,
             sampled: config
@@ -103,7 +106,7 @@ impl BufferRole {
     }
 
     /// The replay, counters and open episodes the run directory's snapshot holds.
-    fn restore(&mut self, dir: &RunDir) -> Result<()> {
+    pub(super) fn restore(&mut self, dir: &RunDir) -> Result<()> {
         self.replay = ReplayBuffer::load(&dir.snapshot())?;
         let saved: SavedState = read_json(&dir.buffer_counters())?;
         self.report = saved.report;
@@ -118,23 +121,23 @@ impl BufferRole {
         Ok(())
     }
 
-    /// Carries out the launcher's orders; whether one stops the buffer.
-    fn obey(&mut self, control: &mut Inbox, inflow: &mut Inflow, dir: &RunDir) -> Result<bool> {
-        let mut stop = false;
+    /// Carries out the launcher's orders (a snapshot at once); which of them stop something.
+    pub(super) fn obey(&mut self, control: &mut Inbox, dir: &RunDir) -> Result<Orders> {
+        let mut orders = Orders::default();
         for message in control.drain()? {
             match message {
-                Message::Control(Control::Stop(Role::Actor)) => inflow.actors_stopped = true,
-                Message::Control(Control::Stop(Role::Buffer)) => stop = true,
+                Message::Control(Control::Stop(Role::Actor)) => orders.actors_stopped = true,
+                Message::Control(Control::Stop(Role::Buffer)) => orders.stop = true,
                 Message::Control(Control::Snapshot) => self.save(dir)?,
                 _ => {}
             }
         }
-        Ok(stop)
+        Ok(orders)
     }
 
     /// Queues the learner's sample requests and applies its priority updates; whether any
     /// came.
-    fn take_requests(&mut self, requests: &mut Inbox) -> Result<bool> {
+    pub(super) fn take_requests(&mut self, requests: &mut Inbox) -> Result<bool> {
         let messages = requests.drain()?;
         for message in &messages {
             match message {
@@ -150,7 +153,7 @@ impl BufferRole {
     }
 
     /// The status to the launcher, the counters to the log.
-    fn report_to(&mut self, status: &mut Outbox, log: &RunLog) -> Result<()> {
+    pub(super) fn report_to(&mut self, status: &mut Outbox, log: &RunLog) -> Result<()> {
         status.send(&Message::Status(self.status()))?;
         log.json(BUFFER_STATS, &self.report)?;
         Ok(())
@@ -158,7 +161,7 @@ impl BufferRole {
 
     /// Checks a message's place in its sender's stream; a new incarnation of an actor
     /// flushes what its predecessors left open.
-    fn arrive(&mut self, origin: Origin) -> Result<&mut (StreamCount, BTreeSet<u64>)> {
+    pub(super) fn arrive(&mut self, origin: Origin) -> Result<&mut (StreamCount, BTreeSet<u64>)> {
         let key = (origin.actor, origin.incarnation);
         if !self.streams.contains_key(&key) {
             let stale: Vec<(u32, u32)> = self
@@ -197,7 +200,7 @@ impl BufferRole {
         Ok(self.streams.get_mut(&key).expect("inserted"))
     }
 
-    fn step(&mut self, step: Step) -> Result<()> {
+    pub(super) fn step(&mut self, step: Step) -> Result<()> {
         let episode = step.transition.episode;
         let (count, open) = self.arrive(step.origin)?;
         count.steps += 1;
@@ -209,7 +212,7 @@ impl BufferRole {
         Ok(())
     }
 
-    fn episode_end(&mut self, end: EpisodeEnd) -> Result<()> {
+    pub(super) fn episode_end(&mut self, end: EpisodeEnd) -> Result<()> {
         let (_, open) = self.arrive(end.origin)?;
         open.remove(&end.episode);
         if let Err(e) = self.replay.end_episode(end.episode, end.grasped) {
@@ -233,7 +236,7 @@ impl BufferRole {
     /// Answers the oldest request once the rate limiter allows it: with a batch, or with no
     /// items while the replay holds none of its primitive (in stage 3 the policy may not
     /// have pushed yet; the learner then trains the other net instead of waiting).
-    fn serve(&mut self, batches: &mut Outbox) -> Result<bool> {
+    pub(super) fn serve(&mut self, batches: &mut Outbox) -> Result<bool> {
         let Some(&request) = self.requests.front() else {
             return Ok(false);
         };
@@ -255,7 +258,7 @@ impl BufferRole {
         Ok(true)
     }
 
-    fn sync_report(&mut self) {
+    pub(super) fn sync_report(&mut self) {
         let stats = self.replay.stats();
         self.report.inserted = stats.inserted;
         self.report.relabelled = stats.relabelled;
@@ -266,7 +269,7 @@ impl BufferRole {
         self.report.success_last30 = success(&self.outcomes[n.saturating_sub(SUCCESS_WINDOW)..]);
     }
 
-    fn status(&mut self) -> Status {
+    pub(super) fn status(&mut self) -> Status {
         self.sync_report();
         let stats = self.replay.stats();
         Status::Buffer {
@@ -281,7 +284,7 @@ impl BufferRole {
         }
     }
 
-    fn save(&mut self, dir: &RunDir) -> Result<()> {
+    pub(super) fn save(&mut self, dir: &RunDir) -> Result<()> {
         self.report.snapshots += 1;
         self.sync_report();
         self.replay.save(&dir.snapshot())?;
@@ -312,121 +315,4 @@ struct SavedState {
     report: BufferReport,
     open: Vec<((u32, u32), Vec<u64>)>,
     outcomes: Vec<bool>,
-}
-
-/// Serves until the launcher says stop; then takes every step still in flight, snapshots and
-/// returns its counters. With `resume`, starts from the run directory's snapshot.
-pub fn run(
-    transport: &dyn Transport,
-    config: &RunConfig,
-    dir: &RunDir,
-    resume: bool,
-    log: &RunLog,
-    lifeline: &Lifeline,
-) -> Result<BufferReport> {
-    let mut role = BufferRole::new(config)?;
-    if resume && dir.snapshot().exists() {
-        role.restore(dir)?;
-    }
-    let mut ports = Ports::open(transport)?;
-    // The first report says the buffer listens: the launcher starts actors only then.
-    ports.status.send(&Message::Status(role.status()))?;
-    let mut inflow = Inflow::new(config.actors);
-    let mut last_status = Instant::now();
-    loop {
-        let stop = role.obey(&mut ports.control, &mut inflow, dir)?;
-        let mut busy = inflow.take(&mut ports.steps, &mut role, log, stop)?;
-        if stop || lifeline.lost() {
-            break;
-        }
-        busy |= role.take_requests(&mut ports.requests)?;
-        busy |= role.serve(&mut ports.batches)?;
-        if last_status.elapsed() >= STATUS_EVERY {
-            role.report_to(&mut ports.status, log)?;
-            last_status = Instant::now();
-        }
-        if !busy {
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    }
-    role.save(dir)?;
-    role.report_to(&mut ports.status, log)?;
-    Ok(role.report)
-}
-
-/// The buffer's ends of the run's topics.
-struct Ports {
-    steps: Inbox,
-    requests: Inbox,
-    control: Inbox,
-    batches: Outbox,
-    status: Outbox,
-}
-
-impl Ports {
-    fn open(transport: &dyn Transport) -> Result<Self> {
-        Ok(Self {
-            steps: Inbox::open(transport, Topic::Steps)?,
-            requests: Inbox::open(transport, Topic::Requests)?,
-            control: Inbox::open(transport, Topic::Control)?,
-            batches: Outbox::open(transport, Topic::Batches)?,
-            status: Outbox::open(transport, Topic::Status)?,
-        })
-    }
-}
-
-/// How steps come in. Back-pressure: steps wait in the transport while the learner lags
-/// behind, except when the actors are stopping (what they send must arrive). They are taken
-/// in rounds, all that every actor has waiting, then let in as the rate limiter allows:
-/// iceoryx2 hands out the first publisher's messages first, so taking one at a time would
-/// let in only one actor's steps whenever the learner sets the pace.
-struct Inflow {
-    /// A round: what every actor can have waiting in the transport, and one more.
-    round: usize,
-    staged: VecDeque<Message>,
-    /// The launcher told the actors to stop: let everything in.
-    actors_stopped: bool,
-}
-
-impl Inflow {
-    fn new(actors: u32) -> Self {
-        let round = (Topic::Steps.buffer() + 1) * actors.max(1) as usize;
-        Self {
-            round,
-            staged: VecDeque::with_capacity(round),
-            actors_stopped: false,
-        }
-    }
-
-    /// Takes in steps and episode ends while the rate limiter allows (all of them when
-    /// stopping); whether any came.
-    fn take(
-        &mut self,
-        steps: &mut Inbox,
-        role: &mut BufferRole,
-        log: &RunLog,
-        stopping: bool,
-    ) -> Result<bool> {
-        let mut busy = false;
-        while self.actors_stopped || stopping || role.replay.can_insert(1) {
-            if self.staged.is_empty() {
-                while self.staged.len() < self.round
-                    && let Some(message) = steps.try_recv()?
-                {
-                    self.staged.push_back(message);
-                }
-            }
-            match self.staged.pop_front() {
-                Some(Message::Step(step)) => role.step(step)?,
-                Some(Message::EpisodeEnd(end)) => {
-                    log.json(BUFFER_EPISODE, &end)?;
-                    role.episode_end(end)?;
-                }
-                Some(other) => bail!("the steps topic carried {other:?}"),
-                None => break,
-            }
-            busy = true;
-        }
-        Ok(busy)
-    }
 }

@@ -1,0 +1,145 @@
+//! The buffer role: receives every actor's steps, assembles and relabels episodes into the
+//! prioritised replay, answers the learner's sample requests and applies its priority
+//! updates, and snapshots on request and at shutdown.
+//!
+//! Every message on the steps topic carries its sender's sequence number, so the buffer
+//! proves the transport lost nothing: per actor incarnation, what arrived is exactly 0..n.
+//! When an actor index comes back as a new incarnation (its process was restarted), the
+//! episodes the old one left open are stored as they are.
+
+mod state;
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, bail};
+use mcaplog::RunLog;
+use wire::{Inbox, Message, Outbox, Topic, Transport};
+
+use crate::config::RunConfig;
+use crate::record::BUFFER_EPISODE;
+use crate::run_dir::RunDir;
+use crate::{Lifeline, STATUS_EVERY};
+pub use state::{BufferReport, StreamCount};
+use state::{BufferRole, Orders};
+
+/// Serves until the launcher says stop; then takes every step still in flight, snapshots and
+/// returns its counters. With `resume`, starts from the run directory's snapshot.
+pub fn run(
+    transport: &dyn Transport,
+    config: &RunConfig,
+    dir: &RunDir,
+    resume: bool,
+    log: &RunLog,
+    lifeline: &Lifeline,
+) -> Result<BufferReport> {
+    let mut role = BufferRole::new(config)?;
+    if resume && dir.snapshot().exists() {
+        role.restore(dir)?;
+    }
+    let mut ports = Ports::open(transport)?;
+    // The first report says the buffer listens: the launcher starts actors only then.
+    ports.status.send(&Message::Status(role.status()))?;
+    let mut inflow = Inflow::new(config.actors);
+    let mut last_status = Instant::now();
+    loop {
+        let Orders {
+            stop,
+            actors_stopped,
+        } = role.obey(&mut ports.control, dir)?;
+        inflow.actors_stopped |= actors_stopped;
+        let mut busy = inflow.take(&mut ports.steps, &mut role, log, stop)?;
+        if stop || lifeline.lost() {
+            break;
+        }
+        busy |= role.take_requests(&mut ports.requests)?;
+        busy |= role.serve(&mut ports.batches)?;
+        if last_status.elapsed() >= STATUS_EVERY {
+            role.report_to(&mut ports.status, log)?;
+            last_status = Instant::now();
+        }
+        if !busy {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    role.save(dir)?;
+    role.report_to(&mut ports.status, log)?;
+    Ok(role.report)
+}
+
+/// The buffer's ends of the run's topics.
+struct Ports {
+    steps: Inbox,
+    requests: Inbox,
+    control: Inbox,
+    batches: Outbox,
+    status: Outbox,
+}
+
+impl Ports {
+    fn open(transport: &dyn Transport) -> Result<Self> {
+        Ok(Self {
+            steps: Inbox::open(transport, Topic::Steps)?,
+            requests: Inbox::open(transport, Topic::Requests)?,
+            control: Inbox::open(transport, Topic::Control)?,
+            batches: Outbox::open(transport, Topic::Batches)?,
+            status: Outbox::open(transport, Topic::Status)?,
+        })
+    }
+}
+
+/// How steps come in. Back-pressure: steps wait in the transport while the learner lags
+/// behind, except when the actors are stopping (what they send must arrive). They are taken
+/// in rounds, all that every actor has waiting, then let in as the rate limiter allows:
+/// iceoryx2 hands out the first publisher's messages first, so taking one at a time would
+/// let in only one actor's steps whenever the learner sets the pace.
+struct Inflow {
+    /// A round: what every actor can have waiting in the transport, and one more.
+    round: usize,
+    staged: VecDeque<Message>,
+    /// The launcher told the actors to stop: let everything in.
+    actors_stopped: bool,
+}
+
+impl Inflow {
+    fn new(actors: u32) -> Self {
+        let round = (Topic::Steps.buffer() + 1) * actors.max(1) as usize;
+        Self {
+            round,
+            staged: VecDeque::with_capacity(round),
+            actors_stopped: false,
+        }
+    }
+
+    /// Takes in steps and episode ends while the rate limiter allows (all of them when
+    /// stopping); whether any came.
+    fn take(
+        &mut self,
+        steps: &mut Inbox,
+        role: &mut BufferRole,
+        log: &RunLog,
+        stopping: bool,
+    ) -> Result<bool> {
+        let mut busy = false;
+        while self.actors_stopped || stopping || role.replay.can_insert(1) {
+            if self.staged.is_empty() {
+                while self.staged.len() < self.round
+                    && let Some(message) = steps.try_recv()?
+                {
+                    self.staged.push_back(message);
+                }
+            }
+            match self.staged.pop_front() {
+                Some(Message::Step(step)) => role.step(step)?,
+                Some(Message::EpisodeEnd(end)) => {
+                    log.json(BUFFER_EPISODE, &end)?;
+                    role.episode_end(end)?;
+                }
+                Some(other) => bail!("the steps topic carried {other:?}"),
+                None => break,
+            }
+            busy = true;
+        }
+        Ok(busy)
+    }
+}
