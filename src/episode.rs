@@ -12,7 +12,7 @@ use serde::Serialize;
 use sim::measure::{detect_change, occupancy_ratio};
 use sim::{Action, Camera, ObjectId, Primitive, SimConfig, Tabletop};
 
-use crate::mask_shape::MaskShape;
+use sim::MaskShape;
 use crate::pictures;
 
 #[derive(Args)]

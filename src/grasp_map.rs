@@ -26,7 +26,7 @@ use sim::{
 };
 
 use crate::eval::{load_agent, named_arrangements};
-use crate::mask_shape::MaskShape;
+use sim::MaskShape;
 use crate::rows::RowArgs;
 
 /// Margins (metres) of `[policy] grasp_margin` at which the success of the grasps the

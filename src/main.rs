@@ -6,7 +6,7 @@ mod episode;
 mod eval;
 mod grasp_map;
 mod inspect;
-mod mask_shape;
+
 mod pictures;
 mod pipeline;
 mod rows;

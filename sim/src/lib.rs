@@ -13,6 +13,7 @@ mod collision;
 pub mod config;
 pub mod error;
 mod gripper;
+pub mod mask_shape;
 pub mod measure;
 pub mod primitives;
 pub mod scene;
@@ -23,6 +24,7 @@ pub use arrangement::{Arrangement, OriginalOptions, PlacedObject};
 pub use camera::{Camera, Heightmaps};
 pub use catalogue::{SLOT_COLOURS, ShapeKind};
 pub use config::SimConfig;
+pub use mask_shape::MaskShape;
 pub use error::{ArrangementError, ConfigError, SimError, above};
 pub use primitives::{
     Action, ActionOutcome, Primitive, ROTATIONS, nearest_rotation, rotation_angle,

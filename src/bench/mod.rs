@@ -11,7 +11,7 @@ use serde::Serialize;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop};
 
-use crate::mask_shape::MaskShape;
+use sim::MaskShape;
 
 mod e2e;
 mod logging;
