@@ -12,8 +12,8 @@ use serde::Serialize;
 use sim::measure::{detect_change, occupancy_ratio};
 use sim::{Action, Camera, ObjectId, Primitive, SimConfig, Tabletop};
 
-use sim::MaskShape;
 use crate::pictures;
+use sim::MaskShape;
 
 #[derive(Args)]
 pub struct EpisodeArgs {

@@ -26,8 +26,8 @@ use sim::{
 };
 
 use crate::eval::{load_agent, named_arrangements};
-use sim::MaskShape;
 use crate::rows::RowArgs;
+use sim::MaskShape;
 
 /// Margins (metres) of `[policy] grasp_margin` at which the success of the grasps the
 /// policy may still make is shown.

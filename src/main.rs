@@ -1,7 +1,6 @@
 //! `pushgrasp`: the command-line program. A thin layer over the workspace's crates; each
 //! subcommand lives in its own module.
 
-mod bench;
 mod episode;
 mod eval;
 mod grasp_map;

@@ -24,8 +24,8 @@ pub use arrangement::{Arrangement, OriginalOptions, PlacedObject};
 pub use camera::{Camera, Heightmaps};
 pub use catalogue::{SLOT_COLOURS, ShapeKind};
 pub use config::SimConfig;
-pub use mask_shape::MaskShape;
 pub use error::{ArrangementError, ConfigError, SimError, above};
+pub use mask_shape::MaskShape;
 pub use primitives::{
     Action, ActionOutcome, Primitive, ROTATIONS, nearest_rotation, rotation_angle,
 };

@@ -3,8 +3,8 @@
 use std::f32::consts::PI;
 
 use crate::camera::Heightmaps;
-use crate::tabletop::ObjectId;
 use crate::primitives::{Action, Primitive, nearest_rotation, rotation_angle};
+use crate::tabletop::ObjectId;
 
 /// Where an object is seen and which way it is long: the centroid, size and major-axis angle
 /// of its pixels in the id map.
