@@ -10,7 +10,6 @@ mod pictures;
 mod pipeline;
 mod rows;
 mod scene;
-mod sweeps;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -69,7 +68,7 @@ enum Command {
     Bench(bench::BenchCommand),
     /// Run a sweep file's training runs (locally or as a Slurm job array); their status and
     /// summary.
-    Sweep(sweeps::SweepArgs),
+    Sweep(sweep::runner::SweepArgs),
 }
 
 fn main() -> Result<()> {
@@ -84,6 +83,6 @@ fn main() -> Result<()> {
         Command::Inspect(args) => inspect::inspect(&args),
         Command::Logs(command) => inspect::logs(command),
         Command::Bench(command) => bench::run(command),
-        Command::Sweep(args) => sweeps::run(&args),
+        Command::Sweep(args) => sweep::runner::run(&args),
     }
 }

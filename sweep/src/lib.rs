@@ -3,7 +3,9 @@
 //! ([`job_array_script`]), Slurm's accounting output ([`parse_sacct`], [`parse_squeue`]) and
 //! the grouping of runs over seeds ([`group_by_all_but`]).
 //!
-//! Everything here is pure: launching runs and showing progress belong to the binary.
+//! [`runner`] is `pushgrasp sweep`: it runs them, each as a `pushgrasp train` of its own, in
+//! a bounded local pool or as a Slurm job array, and reports where they stand and what they
+//! gave. Everything outside it is pure.
 
 mod accounting;
 mod axis;
@@ -13,6 +15,7 @@ mod file;
 mod group;
 mod keys;
 mod options;
+pub mod runner;
 mod slurm;
 
 pub use accounting::{JobState, parse_sacct, parse_squeue};

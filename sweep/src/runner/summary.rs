@@ -7,11 +7,11 @@
 use std::cmp::Ordering;
 use std::path::{Path, PathBuf};
 
+use crate::group_by_all_but;
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use serde::Serialize;
 use stats::mean_and_spread;
-use sweep::group_by_all_but;
 
 use super::dir::{RunEntry, RunState, SweepDir};
 use super::table;

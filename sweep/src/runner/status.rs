@@ -7,12 +7,12 @@ use std::collections::BTreeMap;
 use anyhow::Result;
 
 use super::dir::{RunState, SweepDir};
-use super::{slurm, table};
+use super::{submit, table};
 
 pub fn print(dir: &SweepDir) -> Result<()> {
     let state = dir.read_state()?;
     let plans = dir.plans(&state)?;
-    let tasks = state.slurm.as_ref().map(slurm::task_states);
+    let tasks = state.slurm.as_ref().map(submit::task_states);
 
     let mut header = vec!["run".to_string(), "state".into(), "episodes".into()];
     if tasks.is_some() {

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
+use crate::{Axis, RunPlan, Sweep, dry_run_listing};
 use anyhow::{Context, Result, anyhow};
-use sweep::{Axis, RunPlan, Sweep, dry_run_listing};
 
 use runtime::config::RunConfig;
 

@@ -5,22 +5,22 @@
 //! overlaid.
 //!
 //! This file holds the command line and the start of a sweep; `plan` checks the runs,
-//! `dir` owns the sweep directory, `local` and `slurm` are the two backends.
+//! `dir` owns the sweep directory, `local` and `submit` (Slurm) are the two backends.
 
 mod dir;
 mod local;
 mod plan;
-mod slurm;
 mod status;
+mod submit;
 mod summary;
 mod table;
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use clap::{Args, Subcommand, ValueEnum};
-use serde::{Deserialize, Serialize};
+use clap::{Args, Subcommand};
 
+pub use dir::Backend;
 use dir::SweepDir;
 use plan::Plan;
 
@@ -70,25 +70,6 @@ enum SweepCommand {
     Summary(summary::SummaryArgs),
 }
 
-/// Where a sweep's runs run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Backend {
-    /// Child processes of this program on this machine.
-    Local,
-    /// A Slurm job array, one task per run.
-    Slurm,
-}
-
-impl std::fmt::Display for Backend {
-    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-        f.write_str(match self {
-            Backend::Local => "local",
-            Backend::Slurm => "slurm",
-        })
-    }
-}
-
 pub fn run(args: &SweepArgs) -> Result<()> {
     match &args.command {
         Some(SweepCommand::Status { dir }) => status::print(&SweepDir::open(dir)?),
@@ -115,13 +96,13 @@ fn start(args: &SweepArgs, config: &Path) -> Result<()> {
     let dir = SweepDir::at(args.logs.join(&plan.sweep.name));
     let state = if args.resume {
         let state = dir.resume(&plan, args.backend)?;
-        slurm::ensure_idle(&state)?;
+        submit::ensure_idle(&state)?;
         state
     } else {
         dir.create(&plan, args.backend)?
     };
     match args.backend {
         Backend::Local => local::run(&dir, state, &plan, args.max_parallel),
-        Backend::Slurm => slurm::submit(&dir, state, &plan, args.max_parallel, args.no_submit),
+        Backend::Slurm => submit::submit(&dir, state, &plan, args.max_parallel, args.no_submit),
     }
 }

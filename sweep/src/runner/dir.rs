@@ -11,16 +11,35 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use crate::RunPlan;
 use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
-use sweep::RunPlan;
 
-use super::Backend;
 use super::plan::Plan;
 use runtime::record::LAUNCHER_PROGRESS;
 use runtime::supervisor::ProcessEntry;
 use runtime::{Progress, RunDir, Summary};
 use runtime::{read_json, write_json};
+
+/// Where a sweep's runs run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// Child processes of this program on this machine.
+    Local,
+    /// A Slurm job array, one task per run.
+    Slurm,
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(match self {
+            Backend::Local => "local",
+            Backend::Slurm => "slurm",
+        })
+    }
+}
 
 /// `sweep.json`.
 #[derive(Debug, Serialize, Deserialize)]

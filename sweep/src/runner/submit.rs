@@ -6,8 +6,8 @@ use std::collections::BTreeMap;
 use std::ffi::OsStr;
 use std::process::Command;
 
+use crate::{JobState, RunPlan, bash_quote, job_array_script, parse_sacct, parse_squeue};
 use anyhow::{Context, Result, anyhow, bail};
-use sweep::{JobState, RunPlan, bash_quote, job_array_script, parse_sacct, parse_squeue};
 
 use super::dir::{SlurmJob, SweepDir, SweepState};
 use super::plan::Plan;
