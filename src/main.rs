@@ -4,7 +4,6 @@
 mod episode;
 mod eval;
 mod grasp_map;
-mod inspect;
 
 mod pictures;
 mod pipeline;
