@@ -6,7 +6,6 @@ mod eval;
 mod grasp_map;
 
 mod pictures;
-mod pipeline;
 mod rows;
 mod scene;
 
@@ -51,7 +50,7 @@ enum Command {
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
     Train(runtime::TrainArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
-    Pipeline(pipeline::PipelineArgs),
+    Pipeline(runtime::pipeline::PipelineArgs),
     /// One role of a training run (started by `train`, not by hand).
     #[command(hide = true)]
     Role(runtime::RoleArgs),
@@ -76,7 +75,7 @@ fn main() -> Result<()> {
         Command::Scene(command) => scene::run(command),
         Command::Episode(args) => episode::run(&args),
         Command::Train(args) => runtime::train(&args),
-        Command::Pipeline(args) => pipeline::run(&args),
+        Command::Pipeline(args) => runtime::pipeline::run(&args),
         Command::Role(args) => runtime::role_process(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Inspect(args) => inspect::inspect(&args),

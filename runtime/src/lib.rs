@@ -8,6 +8,7 @@ pub mod buffer;
 pub mod config;
 pub mod launch;
 pub mod learner;
+pub mod pipeline;
 pub mod progress;
 pub mod record;
 pub mod role;

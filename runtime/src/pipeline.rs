@@ -14,9 +14,10 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Deserialize;
 
-use runtime::config::RunConfig;
-use runtime::settings::{load_with, merge, parse_setting};
-use runtime::{RunDir, Summary};
+use crate::config::RunConfig;
+use crate::progress::{Summary, percent};
+use crate::run_dir::RunDir;
+use crate::settings::{load_with, merge, parse_setting};
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -182,7 +183,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
         lines.push(format!(
             "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
             summary.buffer.episodes,
-            runtime::progress::percent(summary.buffer.success_last30),
+            percent(summary.buffer.success_last30),
             summary.wall_s
         ));
         previous = Some(run_dir.checkpoint());
@@ -210,10 +211,10 @@ mod tests {
 
     #[test]
     fn the_shipped_pipelines_resolve_to_valid_stage_configs() {
-        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
-        let mut files = runtime::files_with_extension(&configs.join("ablations"), "toml").unwrap();
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let mut files = crate::files_with_extension(&configs.join("ablations"), "toml").unwrap();
         files.extend(
-            runtime::files_with_extension(&configs, "toml")
+            crate::files_with_extension(&configs, "toml")
                 .unwrap()
                 .into_iter()
                 .filter(|f| {
@@ -242,7 +243,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         for stage in ["stage1.toml", "stage2.toml"] {
             let from = Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("configs")
+                .join("../configs")
                 .join(stage);
             std::fs::copy(from, dir.path().join(stage)).unwrap();
         }
