@@ -4,10 +4,9 @@
 mod episode;
 mod eval;
 mod grasp_map;
-
 mod pictures;
 mod rows;
-mod scene;
+mod scene_tools;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -44,7 +43,7 @@ struct Cli {
 enum Command {
     /// Build scenes, look at them, convert arrangement files.
     #[command(subcommand)]
-    Scene(scene::SceneCommand),
+    Scene(scene_tools::SceneCommand),
     /// Run a scripted episode on a random scene and write what the robot saw to logs/.
     Episode(episode::EpisodeArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
@@ -72,7 +71,7 @@ enum Command {
 fn main() -> Result<()> {
     keep_freed_memory();
     match Cli::parse().command {
-        Command::Scene(command) => scene::run(command),
+        Command::Scene(command) => scene_tools::run(command),
         Command::Episode(args) => episode::run(&args),
         Command::Train(args) => runtime::train(&args),
         Command::Pipeline(args) => runtime::pipeline::run(&args),

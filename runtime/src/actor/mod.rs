@@ -26,7 +26,7 @@ use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weigh
 use crate::config::RunConfig;
 use crate::{Lifeline, stop_requested};
 use pictures::log_pictures;
-use ship::{Pending, Shipper};
+use ship::{Shipper, Unlabelled};
 
 /// Which actor this is: its index in the run and how many times that index was started.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -192,7 +192,7 @@ struct Play<'a> {
     scene_seed: u64,
     tabletop: Tabletop,
     camera: Camera,
-    pending: Option<Pending>,
+    unlabelled: Option<Unlabelled>,
     /// Grasps in a row that held nothing: a scene stuck for too long is replaced.
     failures_in_a_row: usize,
 }
@@ -210,7 +210,7 @@ impl<'a> Play<'a> {
             scene_seed: seed,
             camera: Camera::new(tabletop.grid()),
             tabletop,
-            pending: None,
+            unlabelled: None,
             failures_in_a_row: 0,
         })
     }
@@ -227,7 +227,7 @@ impl<'a> Play<'a> {
         if obs.visible_ids().is_empty()
             || self.failures_in_a_row >= self.config.max_failures_per_scene
         {
-            if let Some(p) = self.pending.take() {
+            if let Some(p) = self.unlabelled.take() {
                 shipper.ship(p, None)?;
             }
             self.scene_seed = self.scene_seed.wrapping_add(1);
@@ -261,7 +261,7 @@ impl<'a> Play<'a> {
             let Choice {
                 decision, grasp, ..
             } = choice;
-            if let Some(p) = self.pending.take() {
+            if let Some(p) = self.unlabelled.take() {
                 shipper.ship(p, Some(&decision))?;
             }
             if decision.action.primitive == Primitive::Grasp && self.config.grasp_trials > 0 {
@@ -281,7 +281,7 @@ impl<'a> Play<'a> {
             };
             obs = self.camera.render(&self.tabletop);
             if decision.action.primitive == Primitive::Push {
-                self.pending = Some(Pending {
+                self.unlabelled = Some(Unlabelled {
                     push_changed: Some(detect_change(&transition.obs, &obs, goal)),
                     transition,
                     decision,
@@ -301,7 +301,7 @@ impl<'a> Play<'a> {
                 self.failures_in_a_row + 1
             };
             let origin = shipper.origin;
-            let grasp = Pending::grasp(
+            let grasp = Unlabelled::grasp(
                 transition,
                 decision,
                 origin,
@@ -311,7 +311,7 @@ impl<'a> Play<'a> {
             );
             report.episodes += 1;
             report.goal_grasps += u64::from(grasp.transition.reward > 0.0);
-            self.pending = Some(grasp);
+            self.unlabelled = Some(grasp);
             break;
         }
         Ok(true)
@@ -366,7 +366,7 @@ impl<'a> Play<'a> {
                 next_value: None,
             };
             report.trials += 1;
-            let pending = Pending::grasp(
+            let unlabelled = Unlabelled::grasp(
                 transition,
                 trial,
                 shipper.origin,
@@ -376,7 +376,7 @@ impl<'a> Play<'a> {
             );
             // A successful trial bootstraps on the executed grasp's view of this scene (its
             // goal grasp Q), standing in for the scene it would leave.
-            shipper.ship(pending, Some(decision))?;
+            shipper.ship(unlabelled, Some(decision))?;
         }
         Ok(())
     }

@@ -35,7 +35,7 @@ pub(super) fn log_pictures(
     if let Some(push) = push {
         log.raw_image(ACTOR_PUSH_Q, t, side, side, "mono8", &best_q(push))?;
     }
-    log.scene_update(ACTOR_SCENE, t, &scene(tabletop, t))?;
+    log.scene_update(ACTOR_SCENE, t, &scene_update(tabletop, t))?;
     Ok(t)
 }
 
@@ -53,7 +53,7 @@ fn best_q(maps: &QMaps) -> Vec<u8> {
 }
 
 /// The objects on the table as boxes in the world frame, one entity per object id.
-fn scene(tabletop: &Tabletop, time_ns: u64) -> mcaplog::SceneUpdate {
+fn scene_update(tabletop: &Tabletop, time_ns: u64) -> mcaplog::SceneUpdate {
     let vector = |v: sim::rapier3d::prelude::Vector| mcaplog::Vector3 {
         x: f64::from(v.x),
         y: f64::from(v.y),

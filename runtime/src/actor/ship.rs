@@ -1,4 +1,4 @@
-//! Steps on their way to the buffer: a step waits ([`Pending`]) until the next decision in
+//! Steps on their way to the buffer: a step waits ([`Unlabelled`]) until the next decision in
 //! its scene gives its label's next value (and a push's reward the goal's grasp Q after it),
 //! then travels with its actor's initial priority ([`Shipper`]), logged as it goes.
 
@@ -13,7 +13,7 @@ use crate::config::RunConfig;
 use crate::record::{ACTOR_EPISODE, ACTOR_STEP, EpisodeRecord, StepRecord};
 
 /// A step waiting for the next decision.
-pub(super) struct Pending {
+pub(super) struct Unlabelled {
     pub(super) transition: Transition,
     pub(super) decision: Decision,
     /// For a push: its reward needs the goal's grasp Q after it; the change around the goal
@@ -37,7 +37,7 @@ pub(super) struct Shipper<'a> {
     pub(super) steps_sent: u64,
 }
 
-impl Pending {
+impl Unlabelled {
     /// A grasp's step, which ends its episode: scored with the grasp reward.
     pub(super) fn grasp(
         mut transition: Transition,
@@ -88,7 +88,7 @@ impl<'a> Shipper<'a> {
 
     /// Completes a pending step with the next state's values and sends it (and the end of
     /// its episode). `next`: the next decision in the same scene, `None` if the scene ended.
-    pub(super) fn ship(&mut self, mut pending: Pending, next: Option<&Decision>) -> Result<()> {
+    pub(super) fn ship(&mut self, mut pending: Unlabelled, next: Option<&Decision>) -> Result<()> {
         let t = &mut pending.transition;
         let (label, next_value) = match t.action.primitive {
             Primitive::Grasp => {
