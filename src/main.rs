@@ -1,12 +1,5 @@
-//! `pushgrasp`: the command-line program. A thin layer over the workspace's crates; each
-//! subcommand lives in its own module.
-
-mod episode;
-mod eval;
-mod grasp_map;
-mod pictures;
-mod rows;
-mod scene_tools;
+//! `pushgrasp`: the command-line program. A thin layer over the workspace's crates: each
+//! subcommand's arguments and one call into the crate that does it.
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -43,9 +36,9 @@ struct Cli {
 enum Command {
     /// Build scenes, look at them, convert arrangement files.
     #[command(subcommand)]
-    Scene(scene_tools::SceneCommand),
+    Scene(scenes::SceneCommand),
     /// Run a scripted episode on a random scene and write what the robot saw to logs/.
-    Episode(episode::EpisodeArgs),
+    Episode(scenes::EpisodeArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
     Train(runtime::TrainArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
@@ -71,8 +64,8 @@ enum Command {
 fn main() -> Result<()> {
     keep_freed_memory();
     match Cli::parse().command {
-        Command::Scene(command) => scene_tools::run(command),
-        Command::Episode(args) => episode::run(&args),
+        Command::Scene(command) => scenes::run(command),
+        Command::Episode(args) => scenes::episode(&args),
         Command::Train(args) => runtime::train(&args),
         Command::Pipeline(args) => runtime::pipeline::run(&args),
         Command::Role(args) => runtime::role_process(&args),

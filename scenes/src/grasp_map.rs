@@ -25,8 +25,8 @@ use sim::{
     Action, Arrangement, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop,
 };
 
-use crate::eval::{load_agent, named_arrangements};
 use crate::rows::RowArgs;
+use eval::{load_agent, named_arrangements};
 use sim::MaskShape;
 
 /// Margins (metres) of `[policy] grasp_margin` at which the success of the grasps the

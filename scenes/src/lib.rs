@@ -1,5 +1,6 @@
 //! `pushgrasp scene`: render scenes to PNGs, convert arrangement files, and try every direct
-//! grasp of an arrangement's goal.
+//! grasp of an arrangement's goal; and `pushgrasp episode`, a scripted episode on a random
+//! scene with what the robot saw written out.
 
 use std::path::PathBuf;
 
@@ -7,8 +8,13 @@ use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use sim::{Arrangement, Camera, OriginalOptions, SimConfig, Tabletop};
 
-use crate::rows::RowArgs;
-use crate::{grasp_map, pictures};
+mod episode;
+mod grasp_map;
+mod pictures;
+mod rows;
+
+pub use episode::{EpisodeArgs, run as episode};
+use rows::RowArgs;
 
 #[derive(Subcommand)]
 pub enum SceneCommand {
