@@ -4,8 +4,6 @@
 //! is reached, on Ctrl-C, or when the learner or the buffer fails.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, anyhow, bail};
@@ -19,7 +17,7 @@ use crate::progress::{Display, Progress, Summary, percent};
 use crate::record::LAUNCHER_SUMMARY;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
-use crate::supervisor::{Supervisor, Wiring};
+use crate::supervisor::{Signals, Supervisor, Wiring};
 use crate::{read_json, write_json};
 
 /// How long the buffer may take to start listening.
@@ -203,41 +201,6 @@ fn print_summary(summary: &Summary, dir: &RunDir) {
         summary.wall_s,
         dir.path().display()
     );
-}
-
-/// What the launcher's signal handlers raise.
-struct Signals {
-    /// Ctrl-C or SIGTERM: stop the run.
-    interrupted: Arc<AtomicBool>,
-    /// SIGUSR1 (`kill -USR1 <launcher>`): the buffer snapshots now.
-    snapshot: Arc<AtomicBool>,
-}
-
-impl Signals {
-    fn install() -> Result<Self> {
-        use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
-        let interrupted = Arc::new(AtomicBool::new(false));
-        for signal in [SIGINT, SIGTERM] {
-            signal_hook::flag::register(signal, interrupted.clone())
-                .context("installing the Ctrl-C handler")?;
-        }
-        let snapshot = Arc::new(AtomicBool::new(false));
-        signal_hook::flag::register(SIGUSR1, snapshot.clone())
-            .context("installing the SIGUSR1 handler")?;
-        Ok(Self {
-            interrupted,
-            snapshot,
-        })
-    }
-
-    fn interrupted(&self) -> bool {
-        self.interrupted.load(Ordering::SeqCst)
-    }
-
-    /// Whether a snapshot was asked for since the last call.
-    fn snapshot_asked(&self) -> bool {
-        self.snapshot.swap(false, Ordering::SeqCst)
-    }
 }
 
 /// Starts the roles, follows the run until its budget or an interrupt, then stops it in

@@ -1,10 +1,12 @@
 //! Supervision of a run's roles: starting each as a child process (or a thread), noticing
 //! when one exits, restarting a crashed actor as its next incarnation, stopping roles of one
-//! kind in order, and killing what does not stop.
+//! kind in order, killing what does not stop; and the signals the launcher answers.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -315,4 +317,39 @@ fn last_error(log: &Path) -> Option<String> {
             .unwrap_or(error)
             .replace('\n', " "),
     )
+}
+
+/// What the launcher's signal handlers raise.
+pub struct Signals {
+    /// Ctrl-C or SIGTERM: stop the run.
+    interrupted: Arc<AtomicBool>,
+    /// SIGUSR1 (`kill -USR1 <launcher>`): the buffer snapshots now.
+    snapshot: Arc<AtomicBool>,
+}
+
+impl Signals {
+    pub fn install() -> Result<Self> {
+        use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
+        let interrupted = Arc::new(AtomicBool::new(false));
+        for signal in [SIGINT, SIGTERM] {
+            signal_hook::flag::register(signal, interrupted.clone())
+                .context("installing the Ctrl-C handler")?;
+        }
+        let snapshot = Arc::new(AtomicBool::new(false));
+        signal_hook::flag::register(SIGUSR1, snapshot.clone())
+            .context("installing the SIGUSR1 handler")?;
+        Ok(Self {
+            interrupted,
+            snapshot,
+        })
+    }
+
+    pub fn interrupted(&self) -> bool {
+        self.interrupted.load(Ordering::SeqCst)
+    }
+
+    /// Whether a snapshot was asked for since the last call.
+    pub fn snapshot_asked(&self) -> bool {
+        self.snapshot.swap(false, Ordering::SeqCst)
+    }
 }
