@@ -36,9 +36,9 @@ struct Cli {
 enum Command {
     /// Build scenes, look at them, convert arrangement files.
     #[command(subcommand)]
-    Scene(scenes::SceneCommand),
+    Scene(scene_tools::SceneCommand),
     /// Run a scripted episode on a random scene and write what the robot saw to logs/.
-    Episode(scenes::EpisodeArgs),
+    Episode(scene_tools::EpisodeArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
     Train(runtime::TrainArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
@@ -64,8 +64,8 @@ enum Command {
 fn main() -> Result<()> {
     keep_freed_memory();
     match Cli::parse().command {
-        Command::Scene(command) => scenes::run(command),
-        Command::Episode(args) => scenes::episode(&args),
+        Command::Scene(command) => scene_tools::run(command),
+        Command::Episode(args) => scene_tools::episode(&args),
         Command::Train(args) => runtime::train(&args),
         Command::Pipeline(args) => runtime::pipeline::run(&args),
         Command::Role(args) => runtime::role_process(&args),
