@@ -462,6 +462,18 @@ impl ConvBackend for Flex {
         if grad.dtype() != DType::F32 || weight.dtype() != DType::F32 {
             return composed::x_grad::<Self>(grad, weight, taps, h);
         }
+        if taps.stride == 1 && 2 * taps.padding == taps.dilation * (taps.kernel - 1) {
+            // A stride-1 convolution that keeps the side: its input's gradient is the output's
+            // gradient convolved with the weights flipped and their channels swapped, the
+            // forward path (a gather) instead of folding columns back (a scatter-add).
+            let weight = weight.to_contiguous();
+            let flipped = flip_channels(weight.storage(), [o, c, taps.kernel]);
+            return Self::conv_taps(
+                grad,
+                flex_tensor(flipped, [c, o, taps.kernel, taps.kernel]),
+                taps,
+            );
+        }
         let (grad, weight) = (grad.to_contiguous(), weight.to_contiguous());
         let (grads, weights): (&[f32], &[f32]) = (grad.storage(), weight.storage());
         let (pixels, depth, per_channel) =
@@ -546,6 +558,17 @@ impl ConvBackend for Flex {
         }
         flex_tensor(summed, [o, c, k, k])
     }
+}
+
+/// Weights `[o, c, k, k]` as `[c, o, k, k]`, each kernel turned half a turn.
+fn flip_channels(weights: &[f32], [o, c, k]: [usize; 3]) -> Vec<f32> {
+    let mut flipped = vec![0.0f32; weights.len()];
+    for (index, value) in flipped.iter_mut().enumerate() {
+        let (ci, rest) = (index / (o * k * k), index % (o * k * k));
+        let (co, tap) = (rest / (k * k), rest % (k * k));
+        *value = weights[(co * c + ci) * k * k + (k * k - 1 - tap)];
+    }
+    flipped
 }
 
 /// One item's channels (`[c, h, h]`) unfolded for the output rows `rows` into `band`
