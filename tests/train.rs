@@ -507,6 +507,14 @@ fn a_killed_actor_is_restarted_and_the_run_finishes() {
     assert!(status.success(), "the run failed after the kill: {status}");
     let summary = summary(logs.path(), "kill");
     assert!(u(&summary["restarts"]) >= 1);
+    let faults = summary["faults"].as_array().unwrap();
+    assert!(
+        faults.iter().any(|f| f["role"] == "actor-0-0"
+            && f["restarted"] == true
+            && f["lost_messages"].is_u64()),
+        "the killed actor is not among the faults: {faults:?}"
+    );
+    assert!(summary["failure"].is_null());
     let reports = summary["actors_reports"].as_array().unwrap();
     assert!(
         reports
@@ -515,6 +523,44 @@ fn a_killed_actor_is_restarted_and_the_run_finishes() {
         "no report of actor 0's second incarnation: {reports:?}"
     );
     assert_lossless(logs.path(), "kill");
+}
+
+#[test]
+fn a_run_a_killed_learner_ends_still_writes_its_summary_with_the_fault() {
+    let logs = logs();
+    let mut run = command(
+        logs.path(),
+        &[
+            "--actors",
+            "1",
+            "--episodes",
+            "100000",
+            "--run-id",
+            "learner-dies",
+        ],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("pushgrasp starts");
+    let entries = wait_for_processes(logs.path(), "learner-dies", 3);
+    std::thread::sleep(Duration::from_secs(3));
+    signal(pid_of(&entries, "learner"), "KILL");
+    let status = wait_exit(&mut run, Duration::from_secs(300));
+    assert!(!status.success(), "a run whose learner died exited 0");
+    let summary = summary(logs.path(), "learner-dies");
+    let failure = summary["failure"].as_str().unwrap_or_default();
+    assert!(failure.contains("learner"), "failure: {failure:?}");
+    let faults = summary["faults"].as_array().unwrap();
+    assert!(
+        faults
+            .iter()
+            .any(|f| f["role"] == "learner" && f["restarted"] == false),
+        "{faults:?}"
+    );
+    // The buffer stopped in order and reported; the learner's counts are its last status.
+    assert!(u(&summary["buffer"]["steps_received"]) > 0);
+    assert!(u(&summary["learner"]["weights_version"]) <= u(&summary["learner"]["updates"]));
 }
 
 #[test]

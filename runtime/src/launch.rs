@@ -76,7 +76,15 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         dir.path().display()
     );
     let start = Instant::now();
-    if let Err(e) = supervise(&mut supervisor, &mut status, &mut control, &signals, start) {
+    let mut watch = Watch::default();
+    let outcome = supervise(
+        &mut supervisor,
+        &mut watch,
+        &mut status,
+        &mut control,
+        &signals,
+    );
+    if let Err(e) = &outcome {
         let _ = supervisor.log.log_line(LogLevel::Fatal, &format!("{e:#}"));
         // Stop what still runs, in order, so the checkpoint and snapshot are written if
         // their roles are alive; then report the failure.
@@ -84,22 +92,41 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             let _ = supervisor.stop(role, &mut control);
         }
         supervisor.kill_all();
-        return Err(e);
     }
-    let summary = Summary {
+    // A role that died wrote no report: its last status report's counts stand in.
+    let mut summary = Summary {
         run_id,
         actors: config.actors,
         restarts: supervisor.restarts(),
         interrupted: signals.interrupted(),
         wall_s: start.elapsed().as_secs_f64(),
-        buffer: read_json(&dir.report(Role::Buffer.name()))?,
-        learner: read_json(&dir.report(Role::Learner.name()))?,
+        buffer: read_json(&dir.report(Role::Buffer.name()))
+            .unwrap_or_else(|_| watch.progress.buffer_report()),
+        learner: read_json(&dir.report(Role::Learner.name()))
+            .unwrap_or_else(|_| watch.progress.learner_report()),
         actors_reports: actor_reports(&dir)?,
+        faults: supervisor.faults.clone(),
+        failure: outcome.as_ref().err().map(|e| format!("{e:#}")),
     };
+    for fault in &mut summary.faults {
+        fault.lost_messages = summary
+            .buffer
+            .streams
+            .iter()
+            .find(|s| {
+                let id = ActorId {
+                    index: s.actor,
+                    incarnation: s.incarnation,
+                };
+                RoleId::Actor(id).name() == fault.role
+            })
+            .map(|s| s.missing);
+    }
     write_json(&dir.summary(), &summary)?;
     supervisor.log.json(LAUNCHER_SUMMARY, &summary)?;
     supervisor.log.finish()?;
     print_summary(&summary, &dir);
+    outcome?;
     if summary.buffer.lost() > 0 {
         bail!(
             "{} messages from the actors never arrived",
@@ -186,10 +213,10 @@ fn actor_reports(dir: &RunDir) -> Result<Vec<ActorReport>> {
 fn print_summary(summary: &Summary, dir: &RunDir) {
     println!(
         "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost), {} learner updates, {} actor restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
-        if summary.interrupted {
-            "interrupted"
-        } else {
-            "done"
+        match (&summary.failure, summary.interrupted) {
+            (Some(_), _) => "failed",
+            (None, true) => "interrupted",
+            (None, false) => "done",
         },
         summary.buffer.episodes,
         percent(summary.buffer.success_first30),
@@ -207,15 +234,14 @@ fn print_summary(summary: &Summary, dir: &RunDir) {
 /// order. Errors when a role that cannot be restarted fails.
 fn supervise(
     supervisor: &mut Supervisor,
+    watch: &mut Watch,
     status: &mut Inbox,
     control: &mut Outbox,
     signals: &Signals,
-    start: Instant,
 ) -> Result<()> {
     let config = supervisor.config().clone();
-    let mut watch = Watch::default();
-    start_roles(supervisor, status, &mut watch, config.actors)?;
-    let mut display = Display::new(config.episodes, start);
+    start_roles(supervisor, status, watch, config.actors)?;
+    let mut display = Display::new(config.episodes, Instant::now());
     loop {
         watch.read(status, supervisor)?;
         if signals.snapshot_asked() {

@@ -144,7 +144,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
             }
             None => path.clone(),
         };
-        let finished = Summary::read(&run_dir)?.is_some_and(|s| !s.interrupted);
+        let finished = Summary::read(&run_dir)?.is_some_and(|s| s.finished());
         if finished {
             println!("{run_id}: finished before, skipped");
         } else {

@@ -117,7 +117,7 @@ impl Progress {
     }
 }
 
-/// What a finished run says about itself (`<run>/summary.json`).
+/// What a run says about itself when it ends, however it ends (`<run>/summary.json`).
 #[derive(Debug, Serialize, Deserialize)]
 pub struct Summary {
     pub run_id: String,
@@ -125,11 +125,36 @@ pub struct Summary {
     pub restarts: u32,
     pub interrupted: bool,
     pub wall_s: f64,
+    /// The buffer's and the learner's reports; for a role that died without writing one, the
+    /// counts of its last status report (the buffer's then has no per-stream counts).
     pub buffer: BufferReport,
     pub learner: LearnerReport,
     /// The reports of actors that stopped cleanly (a killed one writes none; its steps are
     /// accounted for by the buffer's per-incarnation counts).
     pub actors_reports: Vec<ActorReport>,
+    /// Every role that failed, in order: restarted (the run went on) or not (the run ended).
+    /// (Absent from summaries written before: none.)
+    #[serde(default)]
+    pub faults: Vec<Fault>,
+    /// Why the run ended before its budget, when a fault ended it.
+    #[serde(default)]
+    pub failure: Option<String>,
+}
+
+/// A role that failed during a run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Fault {
+    /// The role's name (`actor-0-1`, `learner`, ...).
+    pub role: String,
+    /// Seconds from the launcher's start to when it noticed.
+    pub at_s: f64,
+    pub cause: String,
+    /// Whether it was started again and the run went on.
+    pub restarted: bool,
+    /// For an actor: the messages of its stream that never reached the buffer (filled in
+    /// from the buffer's counts when the run ends).
+    #[serde(default)]
+    pub lost_messages: Option<u64>,
 }
 
 impl Summary {
@@ -140,6 +165,34 @@ impl Summary {
             return Ok(None);
         }
         read_json(&path).map(Some)
+    }
+
+    /// Whether the run ended by itself at its budget (faults it recovered from allowed).
+    pub fn finished(&self) -> bool {
+        !self.interrupted && self.failure.is_none()
+    }
+}
+
+impl Progress {
+    /// The buffer's counts as its last status report gave them.
+    pub fn buffer_report(&self) -> BufferReport {
+        BufferReport {
+            steps_received: self.steps_received,
+            episodes: self.episodes,
+            success_last30: self.success_last30,
+            relabelled: self.relabelled,
+            ..BufferReport::default()
+        }
+    }
+
+    /// The learner's counts as its last status report gave them.
+    pub fn learner_report(&self) -> LearnerReport {
+        LearnerReport {
+            updates: self.updates,
+            weights_version: self.weights_version,
+            last_loss: self.loss,
+            ..LearnerReport::default()
+        }
     }
 }
 

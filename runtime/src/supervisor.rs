@@ -17,6 +17,7 @@ use wire::{ChannelTransport, Control, Message, Outbox, Role};
 
 use crate::actor::ActorId;
 use crate::config::RunConfig;
+use crate::progress::Fault;
 use crate::role::{RoleId, run_role};
 use crate::run_dir::RunDir;
 use crate::{Lifeline, write_json};
@@ -96,6 +97,9 @@ pub struct Supervisor {
     pub log: RunLog,
     /// Restarts per actor index.
     crashes: BTreeMap<u32, u32>,
+    /// Every role that failed, in order.
+    pub faults: Vec<Fault>,
+    started: Instant,
 }
 
 impl Supervisor {
@@ -108,7 +112,19 @@ impl Supervisor {
             slots: Vec::new(),
             log,
             crashes: BTreeMap::new(),
+            faults: Vec::new(),
+            started: Instant::now(),
         }
+    }
+
+    fn fault(&mut self, role: RoleId, cause: &str, restarted: bool) {
+        self.faults.push(Fault {
+            role: role.name(),
+            at_s: self.started.elapsed().as_secs_f64(),
+            cause: cause.into(),
+            restarted,
+            lost_messages: None,
+        });
     }
 
     pub fn config(&self) -> &RunConfig {
@@ -214,47 +230,45 @@ impl Supervisor {
     /// Deals with roles that exited: restarts a crashed actor; an exited learner or buffer
     /// ends the run with its reason.
     pub fn check(&mut self, failures: &[String]) -> Result<()> {
-        let mut restart = Vec::new();
+        let mut exited = Vec::new();
         for slot in self.slots.iter_mut().filter(|s| !s.done) {
-            let Some(outcome) = slot.worker.finished() else {
-                continue;
-            };
-            slot.done = true;
-            match slot.spec {
-                RoleId::Actor(id) => {
-                    let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
-                    let message = format!("{} {why}; starting it again", slot.spec.name());
-                    eprintln!("{message}");
-                    self.log.log_line(LogLevel::Warning, &message)?;
-                    restart.push(ActorId {
-                        index: id.index,
-                        incarnation: id.incarnation + 1,
-                    });
-                }
-                spec => {
-                    let log = self.dir.log(&spec.name());
-                    let why = failures
-                        .iter()
-                        .find(|f| f.starts_with(&spec.name()))
-                        .cloned()
-                        .or_else(|| last_error(&log))
-                        .or_else(|| outcome.err())
-                        .unwrap_or_else(|| "exited before it was told to".into());
-                    bail!(
-                        "the {} cannot continue: {why} (see {})",
-                        spec.name(),
-                        log.display()
-                    );
-                }
+            if let Some(outcome) = slot.worker.finished() {
+                slot.done = true;
+                exited.push((slot.spec, outcome));
             }
         }
-        for id in restart {
+        for (spec, outcome) in exited {
+            let RoleId::Actor(id) = spec else {
+                let log = self.dir.log(&spec.name());
+                let why = failures
+                    .iter()
+                    .find(|f| f.starts_with(&spec.name()))
+                    .cloned()
+                    .or_else(|| last_error(&log))
+                    .or_else(|| outcome.err())
+                    .unwrap_or_else(|| "exited before it was told to".into());
+                self.fault(spec, &why, false);
+                bail!(
+                    "the {} cannot continue: {why} (see {})",
+                    spec.name(),
+                    log.display()
+                );
+            };
+            let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
+            let message = format!("{} {why}; starting it again", spec.name());
+            eprintln!("{message}");
+            self.log.log_line(LogLevel::Warning, &message)?;
             let crashes = self.crashes.entry(id.index).or_insert(0);
             *crashes += 1;
-            if *crashes > MAX_RESTARTS {
+            let crashes = *crashes;
+            self.fault(spec, &why, crashes <= MAX_RESTARTS);
+            if crashes > MAX_RESTARTS {
                 bail!("actor {} crashed {crashes} times; giving up", id.index);
             }
-            self.start(RoleId::Actor(id))?;
+            self.start(RoleId::Actor(ActorId {
+                index: id.index,
+                incarnation: id.incarnation + 1,
+            }))?;
         }
         Ok(())
     }

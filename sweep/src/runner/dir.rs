@@ -298,10 +298,11 @@ impl SweepDir {
         Summary::read(&self.run_dir(id))
     }
 
-    /// Whether the run ended by itself (its summary is not that of an interrupted run):
-    /// `--resume` leaves it alone, even a failed one, whose budget is spent.
+    /// Whether the run ended by itself at its budget ([`Summary::finished`]): `--resume`
+    /// leaves it alone, even one that lost steps, whose budget is spent; a run that was
+    /// interrupted or that a fault ended continues from its checkpoint.
     pub fn finished(&self, id: &str) -> Result<bool> {
-        Ok(self.summary(id)?.is_some_and(|s| !s.interrupted))
+        Ok(self.summary(id)?.is_some_and(|s| s.finished()))
     }
 
     /// Whether the run has a config in its run directory (`train` has taken it on).
@@ -320,6 +321,9 @@ impl SweepDir {
         }
         Ok(match self.summary(&entry.id)? {
             Some(summary) if summary.interrupted => RunState::Unfinished,
+            Some(Summary {
+                failure: Some(why), ..
+            }) => RunState::Failed(why),
             Some(summary) if summary.buffer.lost() > 0 => {
                 RunState::Failed(format!("{} steps lost", summary.buffer.lost()))
             }
