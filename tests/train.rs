@@ -564,6 +564,51 @@ fn a_run_a_killed_learner_ends_still_writes_its_summary_with_the_fault() {
 }
 
 #[test]
+fn a_hung_learner_is_noticed_killed_and_the_run_ends_with_its_summary() {
+    let logs = logs();
+    let stage1 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG))
+        .expect("the stage-1 config");
+    let config = logs.path().join("impatient.toml");
+    std::fs::write(
+        &config,
+        format!("{stage1}\n[run]\nheartbeat_timeout_s = 3\n"),
+    )
+    .unwrap();
+    let mut run = command_with(
+        &config,
+        logs.path(),
+        &["--actors", "1", "--episodes", "100000", "--run-id", "hung"],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("pushgrasp starts");
+    let entries = wait_for_processes(logs.path(), "hung", 3);
+    std::thread::sleep(Duration::from_secs(2));
+    let learner = pid_of(&entries, "learner");
+    signal(learner, "STOP");
+    let stopped = Instant::now();
+    let status = wait_exit(&mut run, Duration::from_secs(120));
+    assert!(!status.success(), "a run whose learner hung exited 0");
+    assert!(
+        stopped.elapsed() < Duration::from_secs(60),
+        "the hung learner went unnoticed for {:?}",
+        stopped.elapsed()
+    );
+    let summary = summary(logs.path(), "hung");
+    let failure = summary["failure"].as_str().unwrap_or_default();
+    assert!(
+        failure.contains("learner") && failure.contains("no status report"),
+        "failure: {failure:?}"
+    );
+    // Killed, not left stopped.
+    assert!(
+        !Path::new(&format!("/proc/{learner}")).exists(),
+        "the hung learner is still there"
+    );
+}
+
+#[test]
 fn a_snapshot_on_request_then_ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_and_resume_continues()
  {
     let logs = logs();

@@ -64,6 +64,26 @@ pub struct RunConfig {
     pub learner: LearnerSchedule,
     #[serde(default)]
     pub logging: LoggingConfig,
+    #[serde(default)]
+    pub run: Supervision,
+}
+
+/// How the launcher watches its roles.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Supervision {
+    /// A role process that sends no status report for this long is taken to be hung, killed
+    /// and handled as a crash. The buffer and the learner report four times a second and an
+    /// actor once an episode; long enough for a checkpoint or a snapshot to be written.
+    pub heartbeat_timeout_s: f64,
+}
+
+impl Default for Supervision {
+    fn default() -> Self {
+        Self {
+            heartbeat_timeout_s: 30.0,
+        }
+    }
 }
 
 /// What the roles write to their MCAP logs beyond every step, episode and update.
@@ -188,6 +208,12 @@ impl RunConfig {
     pub fn validate(&self) -> Result<()> {
         if !(1..=3).contains(&self.stage) {
             bail!("stage: {} is not 1, 2 or 3", self.stage);
+        }
+        if !(self.run.heartbeat_timeout_s.is_finite() && self.run.heartbeat_timeout_s > 0.0) {
+            bail!(
+                "run.heartbeat_timeout_s: {} is not a positive number of seconds",
+                self.run.heartbeat_timeout_s
+            );
         }
         if self.objects == 0 {
             bail!("objects: must be at least 1");

@@ -3,13 +3,14 @@
 //! checkpoints, then the buffer, which takes the last steps and snapshots) when the budget
 //! is reached, on Ctrl-C, or when the learner or the buffer fails.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use mcaplog::LogLevel;
-use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
+use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Status, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
 use crate::config::RunConfig;
@@ -262,24 +263,51 @@ fn supervise(
     stop_in_order(supervisor, control)
 }
 
-/// The status reports read so far: the run's progress, and the failures roles announced.
+/// The status reports read so far: the run's progress, the failures roles announced, and
+/// when each role was last heard from.
 #[derive(Default)]
 struct Watch {
     progress: Progress,
     failures: Vec<String>,
+    last_heard: BTreeMap<String, Instant>,
 }
 
 impl Watch {
-    /// Takes in the waiting reports, then lets the supervisor deal with roles that exited.
+    /// Takes in the waiting reports, kills roles silent too long, then lets the supervisor
+    /// deal with roles that exited.
     fn read(&mut self, status: &mut Inbox, supervisor: &mut Supervisor) -> Result<()> {
         for message in status.drain()? {
-            if let Message::Status(report) = message
-                && let Some(failure) = self.progress.take(report)
-            {
+            let Message::Status(report) = message else {
+                continue;
+            };
+            if let Some(name) = reporter(&report) {
+                self.last_heard.insert(name, Instant::now());
+            }
+            if let Some(failure) = self.progress.take(report) {
                 self.failures.push(failure);
             }
         }
+        let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
+        supervisor.kill_silent(&self.last_heard, timeout);
         supervisor.check(&self.failures)
+    }
+}
+
+/// The name of the role a status report comes from.
+fn reporter(report: &Status) -> Option<String> {
+    match *report {
+        Status::Buffer { .. } => Some(RoleId::Buffer.name()),
+        Status::Learner { .. } => Some(RoleId::Learner.name()),
+        Status::Actor {
+            actor, incarnation, ..
+        } => Some(
+            RoleId::Actor(ActorId {
+                index: actor,
+                incarnation,
+            })
+            .name(),
+        ),
+        Status::Failed { .. } => None,
     }
 }
 

@@ -24,6 +24,8 @@ use crate::{Lifeline, write_json};
 
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
 const MAX_RESTARTS: u32 = 10;
+/// How a role killed for its silence is described.
+const HUNG: &str = "sent no status report";
 /// How long a role may take to stop once told to.
 const STOP_TIMEOUT: Duration = Duration::from_secs(120);
 
@@ -78,6 +80,9 @@ struct Slot {
     worker: Worker,
     /// Set once it exited (cleanly or not) and was dealt with.
     done: bool,
+    started: Instant,
+    /// Why the launcher killed it, when it was silent too long.
+    hung: Option<String>,
 }
 
 /// The processes file: which process plays which role (for users and tests).
@@ -183,6 +188,8 @@ impl Supervisor {
             spec,
             worker,
             done: false,
+            started: Instant::now(),
+            hung: None,
         });
         self.write_processes()
     }
@@ -234,16 +241,21 @@ impl Supervisor {
         for slot in self.slots.iter_mut().filter(|s| !s.done) {
             if let Some(outcome) = slot.worker.finished() {
                 slot.done = true;
-                exited.push((slot.spec, outcome));
+                exited.push((slot.spec, slot.hung.take().map_or(outcome, Err)));
             }
         }
         for (spec, outcome) in exited {
             let RoleId::Actor(id) = spec else {
                 let log = self.dir.log(&spec.name());
-                let why = failures
-                    .iter()
-                    .find(|f| f.starts_with(&spec.name()))
+                let hung = outcome.as_ref().err().filter(|why| why.contains(HUNG));
+                let why = hung
                     .cloned()
+                    .or_else(|| {
+                        failures
+                            .iter()
+                            .find(|f| f.starts_with(&spec.name()))
+                            .cloned()
+                    })
                     .or_else(|| last_error(&log))
                     .or_else(|| outcome.err())
                     .unwrap_or_else(|| "exited before it was told to".into());
@@ -271,6 +283,28 @@ impl Supervisor {
             }))?;
         }
         Ok(())
+    }
+
+    /// Kills every role process that has sent no status report for `timeout` (since it
+    /// started, when it never did): the next [`Supervisor::check`] handles it as a crash.
+    /// (A thread cannot be killed; the threads wiring is for tests and small runs.)
+    pub fn kill_silent(&mut self, last_heard: &BTreeMap<String, Instant>, timeout: Duration) {
+        for slot in self
+            .slots
+            .iter_mut()
+            .filter(|s| !s.done && s.hung.is_none())
+        {
+            let heard = last_heard
+                .get(&slot.spec.name())
+                .map_or(slot.started, |&at| at.max(slot.started));
+            if heard.elapsed() > timeout && slot.worker.pid().is_some() {
+                slot.worker.kill();
+                slot.hung = Some(format!(
+                    "{HUNG} for {:.0} s and was killed",
+                    heard.elapsed().as_secs_f64()
+                ));
+            }
+        }
     }
 
     /// Tells one kind of role to stop and waits for every one of them; kills what does not

@@ -107,6 +107,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("learning.huber_delta", "0.0"),
         ("learning.polyak_rate", "0.0"),
         ("buffer.capacity", "0"),
+        ("run.heartbeat_timeout_s", "0.0"),
         ("buffer.samples_per_insert", "0.0"),
     ] {
         let err = with(field, value).unwrap_err().to_string();
