@@ -103,7 +103,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         wall_s: start.elapsed().as_secs_f64(),
         buffer: read_json(&dir.report(Role::Buffer.name()))
             .unwrap_or_else(|_| watch.progress.buffer_report()),
-        learner: read_json(&dir.report(Role::Learner.name()))
+        learner: read_json(&dir.report(&supervisor.learner().name()))
             .unwrap_or_else(|_| watch.progress.learner_report()),
         actors_reports: actor_reports(&dir)?,
         faults: supervisor.faults.clone(),
@@ -289,15 +289,15 @@ impl Watch {
         }
         let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
         supervisor.kill_silent(&self.last_heard, timeout);
-        supervisor.check(&self.failures)
+        supervisor.check(&self.failures, self.progress.weights_version)
     }
 }
 
 /// The name of the role a status report comes from.
 fn reporter(report: &Status) -> Option<String> {
     match *report {
-        Status::Buffer { .. } => Some(RoleId::Buffer.name()),
-        Status::Learner { .. } => Some(RoleId::Learner.name()),
+        Status::Buffer { .. } => Some(RoleId::Buffer.reporter()),
+        Status::Learner { .. } => Some(RoleId::Learner(0).reporter()),
         Status::Actor {
             actor, incarnation, ..
         } => Some(
@@ -328,7 +328,7 @@ fn start_roles(
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    supervisor.start(RoleId::Learner)?;
+    supervisor.start(RoleId::Learner(0))?;
     let incarnations = supervisor.next_incarnations()?;
     for index in 0..actors {
         supervisor.start(RoleId::Actor(ActorId {

@@ -3,8 +3,9 @@
 //! every `checkpoint_every` and at shutdown.
 //!
 //! Two requests are kept in flight, so the buffer samples the next batch while this one
-//! trains. The weights' version is the number of updates they come from, so it keeps
-//! growing across `--resume`.
+//! trains. The weights' version is the number of updates they come from (plus, after the
+//! learner was restarted, what its predecessor published past the checkpoint resumed), so
+//! it only grows, across `--resume` and restarts.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -29,6 +30,8 @@ use super::run_dir::RunDir;
 use super::{Lifeline, STATUS_EVERY, stop_requested};
 
 const IN_FLIGHT: usize = 2;
+/// The counter bits of a sample request's id (below the learner's incarnation).
+const COUNTER: u64 = (1 << 48) - 1;
 
 /// What the learner did, written to the run directory when it stops.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -44,6 +47,13 @@ pub struct LearnerReport {
     /// Requests the buffer answered with no items (none of their primitive stored yet).
     #[serde(default)]
     pub empty_batches: u64,
+    /// Batches answering a dead predecessor's requests, skipped.
+    #[serde(default)]
+    pub stale_batches: u64,
+    /// Updates a dead predecessor took after the checkpoint this learner resumed from,
+    /// taken again (its weight versions were published; these updates are not in the nets).
+    #[serde(default)]
+    pub redone_updates: u64,
 }
 
 /// The training sample of a stored transition: its label from reward and bootstrap value.
@@ -65,28 +75,44 @@ fn sample(transition: &Transition, weight: f32, gamma: f32) -> Sample {
     }
 }
 
+/// How this learner process starts.
+#[derive(Clone, Copy, Debug)]
+pub struct Start {
+    /// From the run directory's checkpoint, if it holds one.
+    pub resume: bool,
+    /// 0, then one more for each restart of the learner in the run.
+    pub incarnation: u32,
+    /// The newest weight version published before this process (a restart's): the versions
+    /// it publishes pass it, so actors never see one go back.
+    pub weights_after: u64,
+}
+
 /// Trains until the launcher says stop; checkpoints and returns what it did. With `resume`,
 /// starts from the run directory's checkpoint.
 pub fn run(
     transport: &dyn Transport,
     config: &RunConfig,
     dir: &RunDir,
-    resume: bool,
+    start: Start,
     log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<LearnerReport> {
     let mut role = LearnerRole::new(config, log, dir);
-    role.start_from(resume)?;
+    role.start_from(start.resume)?;
+    role.continue_versions(start.weights_after);
     let mut ports = Ports::open(transport)?;
     role.publish(&mut ports.weights)?;
-    let mut asked = Requests::default();
+    let mut asked = Requests::new(start.incarnation);
     let mut last_status = Instant::now();
     while !lifeline.lost() && !stop_requested(&mut ports.control, Role::Learner)? {
         asked.keep_in_flight(&mut ports.requests, config)?;
         match ports.batches.try_recv()? {
             Some(Message::Batch(batch)) => {
-                asked.answered(&batch)?;
-                role.learn(&batch, &mut ports)?;
+                if asked.answered(&batch)? {
+                    role.learn(&batch, &mut ports)?;
+                } else {
+                    role.report.stale_batches += 1;
+                }
             }
             Some(other) => bail!("the batches topic carried {other:?}"),
             None => std::thread::sleep(Duration::from_millis(1)),
@@ -123,14 +149,22 @@ impl Ports {
     }
 }
 
-/// The sample requests sent and not yet answered, oldest first.
-#[derive(Default)]
+/// The sample requests sent and not yet answered, oldest first. Ids carry the learner's
+/// incarnation in their top bits, so a restarted learner knows the answers to its
+/// predecessor's requests.
 struct Requests {
     next: u64,
     in_flight: VecDeque<u64>,
 }
 
 impl Requests {
+    fn new(incarnation: u32) -> Self {
+        Self {
+            next: u64::from(incarnation) << 48,
+            in_flight: VecDeque::new(),
+        }
+    }
+
     /// Asks for batches until [`IN_FLIGHT`] are on their way, taking the stage's trained
     /// nets' primitives in turn.
     fn keep_in_flight(&mut self, requests: &mut Outbox, config: &RunConfig) -> Result<()> {
@@ -138,7 +172,7 @@ impl Requests {
         while self.in_flight.len() < IN_FLIGHT {
             let request = SampleRequest {
                 id: self.next,
-                primitive: nets[self.next as usize % nets.len()].primitive(),
+                primitive: nets[(self.next & COUNTER) as usize % nets.len()].primitive(),
                 size: config.learner.batch_size,
             };
             requests.send(&Message::SampleRequest(request))?;
@@ -148,12 +182,16 @@ impl Requests {
         Ok(())
     }
 
-    /// Checks that `batch` answers the oldest request.
-    fn answered(&mut self, batch: &BatchMessage) -> Result<()> {
+    /// Whether `batch` answers one of this learner's requests (else a predecessor's), which
+    /// must be the oldest.
+    fn answered(&mut self, batch: &BatchMessage) -> Result<bool> {
+        if batch.request >> 48 != self.next >> 48 {
+            return Ok(false);
+        }
         if self.in_flight.pop_front() != Some(batch.request) {
             bail!("the buffer answered request {} out of order", batch.request);
         }
-        Ok(())
+        Ok(true)
     }
 }
 
@@ -166,6 +204,9 @@ struct LearnerRole<'a> {
     updates_before: u64,
     /// When the first batch arrived.
     first_batch: Option<Instant>,
+    /// Added to the updates to give the weight version (after a restart, so versions keep
+    /// rising past the dead learner's).
+    version_offset: u64,
     report: LearnerReport,
 }
 
@@ -191,8 +232,19 @@ impl<'a> LearnerRole<'a> {
             checkpoint: Checkpoint::at(dir.checkpoint()),
             updates_before: 0,
             first_batch: None,
+            version_offset: 0,
             report: LearnerReport::default(),
         }
+    }
+
+    /// After a restart: versions from here on pass `weights_after`, and the updates the
+    /// dead learner took since the checkpoint this one resumed are counted as redone.
+    fn continue_versions(&mut self, weights_after: u64) {
+        if weights_after == 0 {
+            return;
+        }
+        self.version_offset = (weights_after + 1).saturating_sub(self.updates());
+        self.report.redone_updates = weights_after.saturating_sub(self.updates());
     }
 
     /// Continues from the run's checkpoint when resuming one that has it, else starts from
@@ -255,7 +307,7 @@ impl<'a> LearnerRole<'a> {
     }
 
     fn publish(&mut self, weights: &mut Outbox) -> Result<()> {
-        let version = self.updates();
+        let version = self.updates() + self.version_offset;
         weights.send(&Message::Weights(Weights {
             version,
             stage: self.config.stage,

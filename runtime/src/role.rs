@@ -17,20 +17,33 @@ use crate::config::RunConfig;
 use crate::run_dir::RunDir;
 use crate::{Lifeline, write_json};
 
-/// One role of a run: its kind ([`Role`]) and, for an actor, which one.
+/// One role of a run: its kind ([`Role`]) and which one: an actor's index and incarnation,
+/// the learner's incarnation (0, then one more for each restart).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RoleId {
     Buffer,
-    Learner,
+    Learner(u32),
     Actor(ActorId),
 }
 
 impl RoleId {
     /// The role's name in logs, reports and shared-memory nodes (`actor-<index>-<incarnation>`
-    /// for an actor).
+    /// for an actor, `learner-<incarnation>` for a restarted learner).
     pub fn name(self) -> String {
         match self {
             RoleId::Actor(id) => format!("{}-{}-{}", Role::Actor, id.index, id.incarnation),
+            RoleId::Learner(incarnation) if incarnation > 0 => {
+                format!("{}-{incarnation}", Role::Learner)
+            }
+            other => other.kind().name().into(),
+        }
+    }
+
+    /// Whose status reports show this role alive: an actor's own, the buffer's or the
+    /// learner's whatever its incarnation.
+    pub fn reporter(self) -> String {
+        match self {
+            RoleId::Actor(_) => self.name(),
             other => other.kind().name().into(),
         }
     }
@@ -38,20 +51,22 @@ impl RoleId {
     pub fn kind(self) -> Role {
         match self {
             RoleId::Buffer => Role::Buffer,
-            RoleId::Learner => Role::Learner,
+            RoleId::Learner(_) => Role::Learner,
             RoleId::Actor(_) => Role::Actor,
         }
     }
 }
 
 /// Runs a role to its end and writes its report to the run directory; a failure is also
-/// announced on the status topic, so the launcher can say why.
+/// announced on the status topic, so the launcher can say why. `weights_after`: for a
+/// restarted learner, the newest weight version published before, which its own versions
+/// pass.
 pub fn run_role(
     transport: &dyn Transport,
     id: RoleId,
     config: &RunConfig,
     dir: &RunDir,
-    resume: bool,
+    (resume, weights_after): (bool, u64),
     lifeline: &Lifeline,
 ) -> Result<()> {
     let name = id.name();
@@ -62,8 +77,15 @@ pub fn run_role(
     let result = match id {
         RoleId::Buffer => crate::buffer::run(transport, config, dir, resume, &log, lifeline)
             .and_then(|r| write_json(&report, &r)),
-        RoleId::Learner => crate::learner::run(transport, config, dir, resume, &log, lifeline)
-            .and_then(|r| write_json(&report, &r)),
+        RoleId::Learner(incarnation) => {
+            let start = crate::learner::Start {
+                resume,
+                incarnation,
+                weights_after,
+            };
+            crate::learner::run(transport, config, dir, start, &log, lifeline)
+                .and_then(|r| write_json(&report, &r))
+        }
         RoleId::Actor(actor) => crate::actor::run(transport, config, actor, &log, lifeline)
             .and_then(|r| write_json(&report, &r)),
     };
@@ -111,16 +133,19 @@ pub struct RoleArgs {
     /// The actor's index.
     #[arg(long, default_value_t = 0)]
     pub index: u32,
-    /// How many times this actor index was started before.
+    /// How many times this actor index (or the learner) was started before.
     #[arg(long, default_value_t = 0)]
     pub incarnation: u32,
+    /// A restarted learner: the newest weight version published before it.
+    #[arg(long, default_value_t = 0)]
+    pub weights_after: u64,
 }
 
 impl RoleArgs {
     pub fn id(&self) -> RoleId {
         match self.role {
             Role::Buffer => RoleId::Buffer,
-            Role::Learner => RoleId::Learner,
+            Role::Learner => RoleId::Learner(self.incarnation),
             Role::Actor => RoleId::Actor(ActorId {
                 index: self.index,
                 incarnation: self.incarnation,
@@ -142,12 +167,6 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
     let config = RunConfig::load(&dir.config())?;
     let id = args.id();
     let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name())?;
-    run_role(
-        &transport,
-        id,
-        &config,
-        &dir,
-        args.resume,
-        &Lifeline::child(),
-    )
+    let start = (args.resume, args.weights_after);
+    run_role(&transport, id, &config, &dir, start, &Lifeline::child())
 }

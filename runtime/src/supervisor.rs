@@ -24,6 +24,8 @@ use crate::{Lifeline, write_json};
 
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
 const MAX_RESTARTS: u32 = 10;
+/// Crashes of the learner it restarts before it gives up.
+const MAX_LEARNER_RESTARTS: u32 = 3;
 /// How a role killed for its silence is described.
 const HUNG: &str = "sent no status report";
 /// How long a role may take to stop once told to.
@@ -105,6 +107,9 @@ pub struct Supervisor {
     /// Every role that failed, in order.
     pub faults: Vec<Fault>,
     started: Instant,
+    learner_restarts: u32,
+    /// The newest weight version published when the learner last died.
+    weights_after: u64,
 }
 
 impl Supervisor {
@@ -119,6 +124,8 @@ impl Supervisor {
             crashes: BTreeMap::new(),
             faults: Vec::new(),
             started: Instant::now(),
+            learner_restarts: 0,
+            weights_after: 0,
         }
     }
 
@@ -146,13 +153,22 @@ impl Supervisor {
                     .arg("--run-dir")
                     .arg(self.dir.path())
                     .args(["--shm-namespace", namespace]);
-                if self.resume {
+                let (resume, weights_after) = self.start_from(spec);
+                if resume {
                     command.arg("--resume");
                 }
-                if let RoleId::Actor(id) = spec {
-                    command
-                        .args(["--index", &id.index.to_string()])
-                        .args(["--incarnation", &id.incarnation.to_string()]);
+                match spec {
+                    RoleId::Actor(id) => {
+                        command
+                            .args(["--index", &id.index.to_string()])
+                            .args(["--incarnation", &id.incarnation.to_string()]);
+                    }
+                    RoleId::Learner(incarnation) if incarnation > 0 => {
+                        command
+                            .args(["--incarnation", &incarnation.to_string()])
+                            .args(["--weights-after", &weights_after.to_string()]);
+                    }
+                    _ => {}
                 }
                 let log = self.dir.log(&spec.name());
                 let log = std::fs::File::create(&log)
@@ -168,16 +184,16 @@ impl Supervisor {
                 )
             }
             Wiring::Threads { transport } => {
-                let (transport, config, dir, resume) = (
+                let (transport, config, dir, start) = (
                     transport.clone(),
                     self.config.clone(),
                     self.dir.clone(),
-                    self.resume,
+                    self.start_from(spec),
                 );
                 let handle = std::thread::Builder::new()
                     .name(spec.name())
                     .spawn(move || {
-                        run_role(&transport, spec, &config, &dir, resume, &Lifeline::thread())
+                        run_role(&transport, spec, &config, &dir, start, &Lifeline::thread())
                     })?;
                 Worker::Thread(Some(handle))
             }
@@ -192,6 +208,20 @@ impl Supervisor {
             hung: None,
         });
         self.write_processes()
+    }
+
+    /// Whether `spec` starts from the run directory's state, and the weight version a
+    /// restarted learner's must pass.
+    fn start_from(&self, spec: RoleId) -> (bool, u64) {
+        match spec {
+            RoleId::Learner(incarnation) if incarnation > 0 => (true, self.weights_after),
+            _ => (self.resume, 0),
+        }
+    }
+
+    /// The learner now running (its latest incarnation).
+    pub fn learner(&self) -> RoleId {
+        RoleId::Learner(self.learner_restarts)
     }
 
     /// The next incarnation of each actor index a resumed run starts: one past any that ran
@@ -236,7 +266,8 @@ impl Supervisor {
 
     /// Deals with roles that exited: restarts a crashed actor; an exited learner or buffer
     /// ends the run with its reason.
-    pub fn check(&mut self, failures: &[String]) -> Result<()> {
+    /// `weights_version`: the newest the learner reported, which a restarted one passes.
+    pub fn check(&mut self, failures: &[String], weights_version: u64) -> Result<()> {
         let mut exited = Vec::new();
         for slot in self.slots.iter_mut().filter(|s| !s.done) {
             if let Some(outcome) = slot.worker.finished() {
@@ -259,12 +290,30 @@ impl Supervisor {
                     .or_else(|| last_error(&log))
                     .or_else(|| outcome.err())
                     .unwrap_or_else(|| "exited before it was told to".into());
-                self.fault(spec, &why, false);
-                bail!(
-                    "the {} cannot continue: {why} (see {})",
-                    spec.name(),
-                    log.display()
-                );
+                let RoleId::Learner(incarnation) = spec else {
+                    self.fault(spec, &why, false);
+                    bail!(
+                        "the {} cannot continue: {why} (see {})",
+                        spec.name(),
+                        log.display()
+                    );
+                };
+                let restart = incarnation < MAX_LEARNER_RESTARTS;
+                self.fault(spec, &why, restart);
+                if !restart {
+                    bail!(
+                        "the learner failed {} times; giving up: {why} (see {})",
+                        incarnation + 1,
+                        log.display()
+                    );
+                }
+                let message = format!("the {} {why}; starting it again", spec.name());
+                eprintln!("{message}");
+                self.log.log_line(LogLevel::Warning, &message)?;
+                self.learner_restarts = incarnation + 1;
+                self.weights_after = weights_version;
+                self.start(RoleId::Learner(incarnation + 1))?;
+                continue;
             };
             let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
             let message = format!("{} {why}; starting it again", spec.name());
@@ -295,7 +344,7 @@ impl Supervisor {
             .filter(|s| !s.done && s.hung.is_none())
         {
             let heard = last_heard
-                .get(&slot.spec.name())
+                .get(&slot.spec.reporter())
                 .map_or(slot.started, |&at| at.max(slot.started));
             if heard.elapsed() > timeout && slot.worker.pid().is_some() {
                 slot.worker.kill();
