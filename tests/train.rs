@@ -534,9 +534,9 @@ fn published_versions(logs: &Path, run: &str) -> Vec<u64> {
         .collect()
 }
 
-/// Starts a 1-actor run of `episodes` from `config`, lets it train 2 s, sends the learner
-/// `signal`; returns the run's exit status once it ended and the learner's pid.
-fn learner_fault(config: &Path, logs: &Path, run: &str, kill: &str) -> (bool, i32) {
+/// Starts a 1-actor run of 300 episodes from `config`, lets it train 2 s, sends `role`
+/// `kill`; returns whether the run succeeded once it ended, and the role's pid.
+fn role_fault(config: &Path, logs: &Path, run: &str, role: &str, kill: &str) -> (bool, i32) {
     let mut child = command_with(
         config,
         logs,
@@ -548,10 +548,23 @@ fn learner_fault(config: &Path, logs: &Path, run: &str, kill: &str) -> (bool, i3
     .expect("pushgrasp starts");
     let entries = wait_for_processes(logs, run, 3);
     std::thread::sleep(Duration::from_secs(2));
-    let learner = pid_of(&entries, "learner");
-    signal(learner, kill);
+    let pid = pid_of(&entries, role);
+    signal(pid, kill);
     let status = wait_exit(&mut child, Duration::from_secs(300));
-    (status.success(), learner)
+    (status.success(), pid)
+}
+
+/// The stage-1 config with a 3 s heartbeat timeout, written into `logs`.
+fn impatient_config(logs: &Path) -> std::path::PathBuf {
+    let stage1 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG))
+        .expect("the stage-1 config");
+    let config = logs.join("impatient.toml");
+    std::fs::write(
+        &config,
+        format!("{stage1}\n[run]\nheartbeat_timeout_s = 3\n"),
+    )
+    .unwrap();
+    config
 }
 
 /// What a run whose learner was restarted must show: the run reached its budget, the fault
@@ -579,7 +592,13 @@ fn assert_learner_restarted(logs: &Path, run: &str, cause: &str) {
 #[test]
 fn a_killed_learner_is_restarted_and_its_weight_versions_keep_rising() {
     let logs = logs();
-    let (ok, _) = learner_fault(Path::new(CONFIG), logs.path(), "learner-dies", "KILL");
+    let (ok, _) = role_fault(
+        Path::new(CONFIG),
+        logs.path(),
+        "learner-dies",
+        "learner",
+        "KILL",
+    );
     assert!(ok, "the run failed after the learner was killed");
     assert_learner_restarted(logs.path(), "learner-dies", "signal: 9");
 }
@@ -587,20 +606,49 @@ fn a_killed_learner_is_restarted_and_its_weight_versions_keep_rising() {
 #[test]
 fn a_hung_learner_is_noticed_killed_and_restarted() {
     let logs = logs();
-    let stage1 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG))
-        .expect("the stage-1 config");
-    let config = logs.path().join("impatient.toml");
-    std::fs::write(
-        &config,
-        format!("{stage1}\n[run]\nheartbeat_timeout_s = 3\n"),
-    )
-    .unwrap();
-    let (ok, learner) = learner_fault(&config, logs.path(), "hung", "STOP");
+    let config = impatient_config(logs.path());
+    let (ok, learner) = role_fault(&config, logs.path(), "hung", "learner", "STOP");
     assert!(ok, "the run failed after the learner hung");
     assert_learner_restarted(logs.path(), "hung", "no status report");
     assert!(
         !Path::new(&format!("/proc/{learner}")).exists(),
         "the hung learner is still there"
+    );
+}
+
+#[test]
+fn a_hung_actor_is_killed_and_restarted_and_a_hung_buffer_ends_the_run_with_its_summary() {
+    let logs = logs();
+    let config = impatient_config(logs.path());
+    let (ok, actor) = role_fault(&config, logs.path(), "actor-hangs", "actor-0-0", "STOP");
+    assert!(ok, "the run failed after an actor hung");
+    let actor_summary = summary(logs.path(), "actor-hangs");
+    let faults = actor_summary["faults"].as_array().unwrap();
+    assert!(
+        faults.iter().any(|f| f["role"] == "actor-0-0"
+            && f["restarted"] == true
+            && f["cause"]
+                .as_str()
+                .unwrap_or_default()
+                .contains("no status report")),
+        "{faults:?}"
+    );
+    assert!(!Path::new(&format!("/proc/{actor}")).exists());
+
+    let (ok, buffer) = role_fault(&config, logs.path(), "buffer-hangs", "buffer", "STOP");
+    assert!(!ok, "a run whose buffer hung exited 0");
+    let buffer_summary = summary(logs.path(), "buffer-hangs");
+    let failure = buffer_summary["failure"].as_str().unwrap_or_default();
+    assert!(
+        failure.contains("buffer") && failure.contains("no status report"),
+        "failure: {failure:?}"
+    );
+    assert!(!Path::new(&format!("/proc/{buffer}")).exists());
+    // The learner stopped in order and reported.
+    assert!(
+        logs.path()
+            .join("buffer-hangs/reports/learner.json")
+            .exists()
     );
 }
 
