@@ -653,6 +653,34 @@ fn a_hung_actor_is_killed_and_restarted_and_a_hung_buffer_ends_the_run_with_its_
 }
 
 #[test]
+fn a_damaged_newest_snapshot_and_checkpoint_resume_from_the_previous_generation() {
+    let logs = logs();
+    let run = |episodes: &str, resume: bool| {
+        let mut args = vec!["--actors", "1", "--episodes", episodes, "--run-id", "gens"];
+        if resume {
+            args.push("--resume");
+        }
+        train_ok(logs.path(), &args);
+    };
+    // Two generations: the first run's state, then the resumed run's.
+    run("30", false);
+    run("60", true);
+    let dir = logs.path().join("gens");
+    assert!(dir.join("buffer.snapshot.prev").exists() && dir.join("checkpoint.prev").exists());
+    std::fs::write(dir.join("buffer.snapshot"), b"not a snapshot").unwrap();
+    std::fs::write(dir.join("checkpoint/manifest.toml"), b"[[[").unwrap();
+    run("90", true);
+    for (role, damaged) in [("buffer", "buffer.snapshot"), ("learner", "checkpoint")] {
+        let log = std::fs::read_to_string(dir.join(format!("{role}.log"))).unwrap();
+        assert!(
+            log.contains(&format!("{damaged} is damaged")) && log.contains(".prev"),
+            "{role}.log:\n{log}"
+        );
+    }
+    assert!(u(&summary(logs.path(), "gens")["buffer"]["episodes"]) >= 90);
+}
+
+#[test]
 fn a_snapshot_on_request_then_ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_and_resume_continues()
  {
     let logs = logs();

@@ -26,7 +26,7 @@ use wire::{
 
 use super::config::RunConfig;
 use super::record::{LEARNER_UPDATE, UpdateRecord};
-use super::run_dir::RunDir;
+use super::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
 use super::{Lifeline, STATUS_EVERY, stop_requested};
 
 const IN_FLIGHT: usize = 2;
@@ -251,8 +251,21 @@ impl<'a> LearnerRole<'a> {
     /// `init_from`'s nets (an earlier stage's) if the config names them.
     fn start_from(&mut self, resume: bool) -> Result<()> {
         let config = self.config;
-        if resume && self.checkpoint.dir().join("manifest.toml").exists() {
-            let saved = self.checkpoint.load(&config_hash(&config.net))?;
+        let newest = self.checkpoint.dir().to_path_buf();
+        let saved = [newest.clone(), previous(&newest)]
+            .iter()
+            .any(|dir| dir.join("manifest.toml").exists());
+        if resume && saved {
+            // A damaged newest checkpoint: the previous one, with a warning.
+            let hash = config_hash(&config.net);
+            let saved = newest_or_previous(&newest, |before| {
+                let dir = if before {
+                    previous(&newest)
+                } else {
+                    newest.clone()
+                };
+                Ok(Checkpoint::at(dir).load(&hash)?)
+            })?;
             let manifest = &saved.manifest;
             if manifest.stage != config.stage || manifest.side != config.side() {
                 bail!(
@@ -319,6 +332,7 @@ impl<'a> LearnerRole<'a> {
 
     fn save_checkpoint(&mut self) -> Result<()> {
         let (weights, trained) = self.trainer.checkpoint_weights()?;
+        keep_previous(self.checkpoint.dir())?;
         self.checkpoint.save(&SavedNets {
             manifest: Manifest {
                 stage: self.config.stage,

@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+use anyhow::{Context, Result};
+
 /// The directory of one run.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RunDir {
@@ -63,7 +65,8 @@ impl RunDir {
         self.path.join("processes.json")
     }
 
-    /// The learner's checkpoint (`checkpoint/`).
+    /// The learner's checkpoint (`checkpoint/`; the one before it `checkpoint.prev/`, as
+    /// every generation: see [`previous`]).
     pub fn checkpoint(&self) -> PathBuf {
         self.path.join("checkpoint")
     }
@@ -83,4 +86,52 @@ impl RunDir {
     pub fn curve(&self) -> PathBuf {
         self.path.join("curve.csv")
     }
+}
+
+/// The generation before `path` (a snapshot, its counters, a checkpoint), kept so that a
+/// damaged newest one is not the end of a run: `<path>.prev`.
+pub fn previous(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".prev");
+    PathBuf::from(name)
+}
+
+/// Before a new generation of `path` is written: the current one (if any) becomes the
+/// previous, replacing the one there.
+pub fn keep_previous(path: &Path) -> Result<()> {
+    if !path.exists() {
+        return Ok(());
+    }
+    let before = previous(path);
+    if before.is_dir() {
+        std::fs::remove_dir_all(&before)
+    } else if before.exists() {
+        std::fs::remove_file(&before)
+    } else {
+        Ok(())
+    }
+    .with_context(|| format!("removing {}", before.display()))?;
+    std::fs::rename(path, &before).with_context(|| format!("keeping {}", path.display()))
+}
+
+/// `load(false)`, the newest generation of `newest`; when it is damaged and a previous one
+/// exists, `load(true)` with a warning naming the damaged file. Both failing is an error
+/// naming both.
+pub fn newest_or_previous<T>(newest: &Path, load: impl Fn(bool) -> Result<T>) -> Result<T> {
+    let damaged = match load(false) {
+        Ok(value) => return Ok(value),
+        Err(e) if previous(newest).exists() => e,
+        Err(e) => return Err(e),
+    };
+    eprintln!(
+        "warning: {} is damaged ({damaged:#}); going on from the previous generation, {}",
+        newest.display(),
+        previous(newest).display()
+    );
+    load(true).with_context(|| {
+        format!(
+            "{} is damaged ({damaged:#}), and so is the previous generation",
+            newest.display()
+        )
+    })
 }

@@ -18,7 +18,7 @@ use wire::{Inbox, Message, Outbox, Topic, Transport};
 
 use crate::config::RunConfig;
 use crate::record::BUFFER_EPISODE;
-use crate::run_dir::RunDir;
+use crate::run_dir::{RunDir, previous};
 use crate::{Lifeline, STATUS_EVERY};
 pub use state::{BufferReport, StreamCount};
 use state::{BufferRole, Orders};
@@ -34,7 +34,7 @@ pub fn run(
     lifeline: &Lifeline,
 ) -> Result<BufferReport> {
     let mut role = BufferRole::new(config)?;
-    if resume && dir.snapshot().exists() {
+    if resume && (dir.snapshot().exists() || previous(&dir.snapshot()).exists()) {
         role.restore(dir)?;
     }
     let mut ports = Ports::open(transport)?;

@@ -3,6 +3,7 @@
 //! saved beside the replay's snapshot.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use buffer::{ReplayBuffer, Serving};
@@ -17,7 +18,7 @@ use wire::{
 
 use crate::config::RunConfig;
 use crate::record::BUFFER_STATS;
-use crate::run_dir::RunDir;
+use crate::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
 use crate::{SUCCESS_WINDOW, read_json, write_json};
 
 /// What one actor incarnation's stream delivered.
@@ -106,9 +107,15 @@ impl BufferRole {
     }
 
     /// The replay, counters and open episodes the run directory's snapshot holds.
+    /// (A damaged newest snapshot or its counters: the previous pair, with a warning.)
     pub(super) fn restore(&mut self, dir: &RunDir) -> Result<()> {
-        self.replay = ReplayBuffer::load(&dir.snapshot())?;
-        let saved: SavedState = read_json(&dir.buffer_counters())?;
+        let (replay, saved) = newest_or_previous(&dir.snapshot(), |before| {
+            let pick = |path: PathBuf| if before { previous(&path) } else { path };
+            let replay = ReplayBuffer::load(&pick(dir.snapshot()))?;
+            let saved: SavedState = read_json(&pick(dir.buffer_counters()))?;
+            Ok((replay, saved))
+        })?;
+        self.replay = replay;
         self.report = saved.report;
         self.outcomes = saved.outcomes;
         let open: BTreeMap<(u32, u32), Vec<u64>> = saved.open.into_iter().collect();
@@ -287,6 +294,8 @@ impl BufferRole {
     pub(super) fn save(&mut self, dir: &RunDir) -> Result<()> {
         self.report.snapshots += 1;
         self.sync_report();
+        keep_previous(&dir.snapshot())?;
+        keep_previous(&dir.buffer_counters())?;
         self.replay.save(&dir.snapshot())?;
         let state = SavedState {
             report: self.report.clone(),
