@@ -11,7 +11,6 @@ use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::ops::ModuleOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, TensorMetadata, backend_extension};
 use burn::nn::BatchNorm;
@@ -40,8 +39,7 @@ pub trait NormBackend: Backend {
         statistics: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
-        let [mean, variance] = composed::split::<Self>(statistics);
-        Self::batch_norm(x, gamma, beta, mean, variance, epsilon)
+        composed::train::<Self>(x, gamma, beta, statistics, epsilon)
     }
 
     /// The gradients of [`NormBackend::norm_train`]: input, gamma and beta, stacked as the
@@ -131,8 +129,7 @@ impl NormBackend for Flex {
         epsilon: f64,
     ) -> FloatTensor<Self> {
         let Some([c, m]) = layout(&x) else {
-            let [mean, variance] = composed::split::<Self>(statistics);
-            return Self::batch_norm(x, gamma, beta, mean, variance, epsilon);
+            return composed::train::<Self>(x, gamma, beta, statistics, epsilon);
         };
         let shape = x.shape().to_vec();
         let (x, gamma, beta, statistics) = (
@@ -258,6 +255,18 @@ mod composed {
                 [c].into(),
             )
         })
+    }
+
+    /// The normalisation with the batch's `statistics`: burn's batch norm.
+    pub fn train<B: Backend>(
+        x: FloatTensor<B>,
+        gamma: FloatTensor<B>,
+        beta: FloatTensor<B>,
+        statistics: FloatTensor<B>,
+        epsilon: f64,
+    ) -> FloatTensor<B> {
+        let [mean, variance] = split::<B>(statistics);
+        B::batch_norm(x, gamma, beta, mean, variance, epsilon)
     }
 
     pub fn grads<B: Backend>(
@@ -444,10 +453,15 @@ mod tests {
             1e-5,
             "statistics",
         );
-        let [mean, variance] = composed::split::<Flex>(statistics());
         assert_close(
             &values(Flex::norm_train(x(), gamma(), beta(), statistics(), 1e-5)),
-            &values(Flex::batch_norm(x(), gamma(), beta(), mean, variance, 1e-5)),
+            &values(composed::train::<Flex>(
+                x(),
+                gamma(),
+                beta(),
+                statistics(),
+                1e-5,
+            )),
             1e-5,
             "output",
         );

@@ -417,6 +417,18 @@ thread_local! {
     static BAND: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
+/// Unfolds one item (`[c, h, h]`) a band of output rows at a time into this thread's band
+/// buffer, handing each band's rows and columns (`c x k x k` rows of `rows x side`) to `f`.
+fn for_each_band(item: &[f32], h: usize, taps: &Taps, mut f: impl FnMut(Range<usize>, &[f32])) {
+    let depth = item.len() / (h * h) * taps.per_channel();
+    BAND.with_borrow_mut(|band| {
+        for rows in bands(depth, taps.out_side(h)) {
+            unfold_item(item, h, taps, rows.clone(), band);
+            f(rows, band);
+        }
+    });
+}
+
 impl ConvBackend for Flex {
     fn conv_taps(x: FloatTensor<Self>, weight: FloatTensor<Self>, taps: Taps) -> FloatTensor<Self> {
         let ([n, c, h, w], [o, ..]) = (x.shape().dims(), weight.shape().dims::<4>());
@@ -431,21 +443,18 @@ impl ConvBackend for Flex {
         out.par_chunks_mut(o * pixels)
             .zip(input.par_chunks(c * h * h))
             .for_each(|(y, item)| {
-                BAND.with_borrow_mut(|band| {
-                    for rows in bands(depth, side) {
-                        let (first, cols) = (rows.start, rows.len() * side);
-                        unfold_item(item, h, &taps, rows, band);
-                        // SAFETY: `y[.., first * side..]` is `o x cols` with row stride
-                        // `pixels`, `weights` `o x depth`, `band` `depth x cols`.
-                        unsafe {
-                            multiply(
-                                [o, cols, depth],
-                                (y.as_mut_ptr().add(first * side), pixels as isize, 1),
-                                false,
-                                View::rows(weights.as_ptr(), depth),
-                                View::rows(band.as_ptr(), cols),
-                            );
-                        }
+                for_each_band(item, h, &taps, |rows, band| {
+                    let (first, cols) = (rows.start, rows.len() * side);
+                    // SAFETY: `y[.., first * side..]` is `o x cols` with row stride `pixels`,
+                    // `weights` `o x depth`, `band` `depth x cols`.
+                    unsafe {
+                        multiply(
+                            [o, cols, depth],
+                            (y.as_mut_ptr().add(first * side), pixels as isize, 1),
+                            false,
+                            View::rows(weights.as_ptr(), depth),
+                            View::rows(band.as_ptr(), cols),
+                        );
                     }
                 });
             });
@@ -531,22 +540,19 @@ impl ConvBackend for Flex {
             .zip(grads.par_chunks(o * pixels))
             .map(|(item, dy)| {
                 let mut sum = vec![0.0f32; o * depth];
-                BAND.with_borrow_mut(|band| {
-                    for rows in bands(depth, side) {
-                        let (first, cols) = (rows.start, rows.len() * side);
-                        unfold_item(item, h, &taps, rows, band);
-                        // SAFETY: `sum` is `o x depth`; `dy[.., first * side..]` is `o x cols`
-                        // with row stride `pixels`; the band's transpose is `cols x depth` (row
-                        // stride 1, column stride `cols`).
-                        unsafe {
-                            multiply(
-                                [o, depth, cols],
-                                (sum.as_mut_ptr(), depth as isize, 1),
-                                true,
-                                View::rows(dy.as_ptr().add(first * side), pixels),
-                                View::columns(band.as_ptr(), cols),
-                            );
-                        }
+                for_each_band(item, h, &taps, |rows, band| {
+                    let (first, cols) = (rows.start, rows.len() * side);
+                    // SAFETY: `sum` is `o x depth`; `dy[.., first * side..]` is `o x cols` with
+                    // row stride `pixels`; the band's transpose is `cols x depth` (row stride 1,
+                    // column stride `cols`).
+                    unsafe {
+                        multiply(
+                            [o, depth, cols],
+                            (sum.as_mut_ptr(), depth as isize, 1),
+                            true,
+                            View::rows(dy.as_ptr().add(first * side), pixels),
+                            View::columns(band.as_ptr(), cols),
+                        );
                     }
                 });
                 sum

@@ -101,10 +101,12 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         restarts: supervisor.restarts(),
         interrupted: signals.interrupted(),
         wall_s: start.elapsed().as_secs_f64(),
-        buffer: read_json(&dir.report(Role::Buffer.name()))
-            .unwrap_or_else(|_| watch.progress.buffer_report()),
-        learner: read_json(&dir.report(&supervisor.learner().name()))
-            .unwrap_or_else(|_| watch.progress.learner_report()),
+        buffer: report_or(&dir.report(Role::Buffer.name()), || {
+            watch.progress.buffer_report()
+        })?,
+        learner: report_or(&dir.report(&supervisor.learner().name()), || {
+            watch.progress.learner_report()
+        })?,
         actors_reports: actor_reports(&dir)?,
         faults: supervisor.faults.clone(),
         failure: outcome.as_ref().err().map(|e| format!("{e:#}")),
@@ -193,6 +195,16 @@ fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Box<dyn 
     wire::ShmTransport::remove_stale(&namespace)?;
     let transport = wire::ShmTransport::new(&namespace, "launcher")?;
     Ok((Wiring::Processes { namespace }, Box::new(transport)))
+}
+
+/// The report at `path`, or `missing()` when the role wrote none (it died); a report that
+/// cannot be read is an error naming it.
+fn report_or<T: serde::de::DeserializeOwned>(path: &Path, missing: impl Fn() -> T) -> Result<T> {
+    if path.exists() {
+        read_json(path)
+    } else {
+        Ok(missing())
+    }
 }
 
 /// The reports of actors that stopped cleanly, in index and incarnation order.
@@ -296,8 +308,8 @@ impl Watch {
 /// The name of the role a status report comes from.
 fn reporter(report: &Status) -> Option<String> {
     match *report {
-        Status::Buffer { .. } => Some(RoleId::Buffer.reporter()),
-        Status::Learner { .. } => Some(RoleId::Learner(0).reporter()),
+        Status::Buffer { .. } => Some(Role::Buffer.name().into()),
+        Status::Learner { .. } => Some(Role::Learner.name().into()),
         Status::Actor {
             actor, incarnation, ..
         } => Some(

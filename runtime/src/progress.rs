@@ -115,6 +115,26 @@ impl Progress {
             self.weights_version
         )
     }
+    /// The buffer's counts as its last status report gave them.
+    pub fn buffer_report(&self) -> BufferReport {
+        BufferReport {
+            steps_received: self.steps_received,
+            episodes: self.episodes,
+            success_last30: self.success_last30,
+            relabelled: self.relabelled,
+            ..BufferReport::default()
+        }
+    }
+
+    /// The learner's counts as its last status report gave them.
+    pub fn learner_report(&self) -> LearnerReport {
+        LearnerReport {
+            updates: self.updates,
+            weights_version: self.weights_version,
+            last_loss: self.loss,
+            ..LearnerReport::default()
+        }
+    }
 }
 
 /// What a run says about itself when it ends, however it ends (`<run>/summary.json`).
@@ -170,29 +190,6 @@ impl Summary {
     /// Whether the run ended by itself at its budget (faults it recovered from allowed).
     pub fn finished(&self) -> bool {
         !self.interrupted && self.failure.is_none()
-    }
-}
-
-impl Progress {
-    /// The buffer's counts as its last status report gave them.
-    pub fn buffer_report(&self) -> BufferReport {
-        BufferReport {
-            steps_received: self.steps_received,
-            episodes: self.episodes,
-            success_last30: self.success_last30,
-            relabelled: self.relabelled,
-            ..BufferReport::default()
-        }
-    }
-
-    /// The learner's counts as its last status report gave them.
-    pub fn learner_report(&self) -> LearnerReport {
-        LearnerReport {
-            updates: self.updates,
-            weights_version: self.weights_version,
-            last_loss: self.loss,
-            ..LearnerReport::default()
-        }
     }
 }
 

@@ -57,16 +57,24 @@ impl RoleId {
     }
 }
 
+/// Where a role starts from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StartFrom {
+    /// The run directory's saved state (the checkpoint, the buffer's snapshot).
+    pub resume: bool,
+    /// For a restarted learner: the newest weight version published before it, which its
+    /// own versions pass.
+    pub weights_after: u64,
+}
+
 /// Runs a role to its end and writes its report to the run directory; a failure is also
-/// announced on the status topic, so the launcher can say why. `weights_after`: for a
-/// restarted learner, the newest weight version published before, which its own versions
-/// pass.
+/// announced on the status topic, so the launcher can say why.
 pub fn run_role(
     transport: &dyn Transport,
     id: RoleId,
     config: &RunConfig,
     dir: &RunDir,
-    (resume, weights_after): (bool, u64),
+    from: StartFrom,
     lifeline: &Lifeline,
 ) -> Result<()> {
     let name = id.name();
@@ -75,13 +83,13 @@ pub fn run_role(
     let log = open_log(dir, &name, config)?;
     log.log_line(LogLevel::Info, &format!("{name} started"))?;
     let result = match id {
-        RoleId::Buffer => crate::buffer::run(transport, config, dir, resume, &log, lifeline)
+        RoleId::Buffer => crate::buffer::run(transport, config, dir, from.resume, &log, lifeline)
             .and_then(|r| write_json(&report, &r)),
         RoleId::Learner(incarnation) => {
             let start = crate::learner::Start {
-                resume,
+                resume: from.resume,
                 incarnation,
-                weights_after,
+                weights_after: from.weights_after,
             };
             crate::learner::run(transport, config, dir, start, &log, lifeline)
                 .and_then(|r| write_json(&report, &r))
@@ -167,6 +175,9 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
     let config = RunConfig::load(&dir.config())?;
     let id = args.id();
     let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name())?;
-    let start = (args.resume, args.weights_after);
-    run_role(&transport, id, &config, &dir, start, &Lifeline::child())
+    let from = StartFrom {
+        resume: args.resume,
+        weights_after: args.weights_after,
+    };
+    run_role(&transport, id, &config, &dir, from, &Lifeline::child())
 }

@@ -18,7 +18,7 @@ use wire::{ChannelTransport, Control, Message, Outbox, Role};
 use crate::actor::ActorId;
 use crate::config::RunConfig;
 use crate::progress::Fault;
-use crate::role::{RoleId, run_role};
+use crate::role::{RoleId, StartFrom, run_role};
 use crate::run_dir::RunDir;
 use crate::{Lifeline, write_json};
 
@@ -153,8 +153,8 @@ impl Supervisor {
                     .arg("--run-dir")
                     .arg(self.dir.path())
                     .args(["--shm-namespace", namespace]);
-                let (resume, weights_after) = self.start_from(spec);
-                if resume {
+                let from = self.start_from(spec);
+                if from.resume {
                     command.arg("--resume");
                 }
                 match spec {
@@ -166,7 +166,7 @@ impl Supervisor {
                     RoleId::Learner(incarnation) if incarnation > 0 => {
                         command
                             .args(["--incarnation", &incarnation.to_string()])
-                            .args(["--weights-after", &weights_after.to_string()]);
+                            .args(["--weights-after", &from.weights_after.to_string()]);
                     }
                     _ => {}
                 }
@@ -212,10 +212,16 @@ impl Supervisor {
 
     /// Whether `spec` starts from the run directory's state, and the weight version a
     /// restarted learner's must pass.
-    fn start_from(&self, spec: RoleId) -> (bool, u64) {
+    fn start_from(&self, spec: RoleId) -> StartFrom {
         match spec {
-            RoleId::Learner(incarnation) if incarnation > 0 => (true, self.weights_after),
-            _ => (self.resume, 0),
+            RoleId::Learner(incarnation) if incarnation > 0 => StartFrom {
+                resume: true,
+                weights_after: self.weights_after,
+            },
+            _ => StartFrom {
+                resume: self.resume,
+                weights_after: 0,
+            },
         }
     }
 
