@@ -3,22 +3,22 @@
 //! checkpoints, then the buffer, which takes the last steps and snapshots) when the budget
 //! is reached, on Ctrl-C, or when the learner or the buffer fails.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use mcaplog::LogLevel;
-use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Status, Topic, Transport};
+use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
 use crate::config::RunConfig;
-use crate::progress::{Display, Progress, Summary, percent};
+use crate::progress::{Display, Summary, Watch, percent};
 use crate::record::LAUNCHER_SUMMARY;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
-use crate::supervisor::{Signals, Supervisor, Wiring};
+use crate::signals::Signals;
+use crate::supervisor::{Supervisor, Wiring};
 use crate::{read_json, write_json};
 
 /// How long the buffer may take to start listening.
@@ -273,54 +273,6 @@ fn supervise(
     }
     display.finish();
     stop_in_order(supervisor, control)
-}
-
-/// The status reports read so far: the run's progress, the failures roles announced, and
-/// when each role was last heard from.
-#[derive(Default)]
-struct Watch {
-    progress: Progress,
-    failures: Vec<String>,
-    last_heard: BTreeMap<String, Instant>,
-}
-
-impl Watch {
-    /// Takes in the waiting reports, kills roles silent too long, then lets the supervisor
-    /// deal with roles that exited.
-    fn read(&mut self, status: &mut Inbox, supervisor: &mut Supervisor) -> Result<()> {
-        for message in status.drain()? {
-            let Message::Status(report) = message else {
-                continue;
-            };
-            if let Some(name) = reporter(&report) {
-                self.last_heard.insert(name, Instant::now());
-            }
-            if let Some(failure) = self.progress.take(report) {
-                self.failures.push(failure);
-            }
-        }
-        let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
-        supervisor.kill_silent(&self.last_heard, timeout);
-        supervisor.check(&self.failures, self.progress.weights_version)
-    }
-}
-
-/// The name of the role a status report comes from.
-fn reporter(report: &Status) -> Option<String> {
-    match *report {
-        Status::Buffer { .. } => Some(Role::Buffer.name().into()),
-        Status::Learner { .. } => Some(Role::Learner.name().into()),
-        Status::Actor {
-            actor, incarnation, ..
-        } => Some(
-            RoleId::Actor(ActorId {
-                index: actor,
-                incarnation,
-            })
-            .name(),
-        ),
-        Status::Failed { .. } => None,
-    }
 }
 
 /// The buffer first (actors start only once it listens, so no step goes unheard), then the

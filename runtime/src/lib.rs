@@ -14,7 +14,9 @@ pub mod record;
 pub mod role;
 pub mod run_dir;
 pub mod settings;
+pub mod signals;
 pub mod supervisor;
+pub mod worker;
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;

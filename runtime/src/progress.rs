@@ -9,15 +9,16 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
-use wire::Status;
+use wire::{Inbox, Message, Role, Status};
 
-use crate::actor::ActorReport;
+use crate::actor::{ActorId, ActorReport};
 use crate::buffer::BufferReport;
 use crate::learner::LearnerReport;
 use crate::read_json;
 use crate::record::LAUNCHER_PROGRESS;
+use crate::role::RoleId;
 use crate::run_dir::RunDir;
-use crate::supervisor::Supervisor;
+use crate::supervisor::{Fault, Supervisor};
 
 /// What the launcher saw of the run, from the roles' status reports.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -161,22 +162,6 @@ pub struct Summary {
     pub failure: Option<String>,
 }
 
-/// A role that failed during a run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Fault {
-    /// The role's name (`actor-0-1`, `learner`, ...).
-    pub role: String,
-    /// Seconds from the launcher's start to when it noticed.
-    pub at_s: f64,
-    pub cause: String,
-    /// Whether it was started again and the run went on.
-    pub restarted: bool,
-    /// For an actor: the messages of its stream that never reached the buffer (filled in
-    /// from the buffer's counts when the run ends).
-    #[serde(default)]
-    pub lost_messages: Option<u64>,
-}
-
 impl Summary {
     /// The summary of the run in `dir`, if it wrote one.
     pub fn read(dir: &RunDir) -> Result<Option<Summary>> {
@@ -273,5 +258,53 @@ impl Display {
         if let Some(bar) = self.bar {
             bar.finish();
         }
+    }
+}
+
+/// The status reports read so far: the run's progress, the failures roles announced, and
+/// when each role was last heard from.
+#[derive(Default)]
+pub struct Watch {
+    pub progress: Progress,
+    failures: Vec<String>,
+    last_heard: BTreeMap<String, Instant>,
+}
+
+impl Watch {
+    /// Takes in the waiting reports, kills roles silent too long, then lets the supervisor
+    /// deal with roles that exited.
+    pub fn read(&mut self, status: &mut Inbox, supervisor: &mut Supervisor) -> Result<()> {
+        for message in status.drain()? {
+            let Message::Status(report) = message else {
+                continue;
+            };
+            if let Some(name) = reporter(&report) {
+                self.last_heard.insert(name, Instant::now());
+            }
+            if let Some(failure) = self.progress.take(report) {
+                self.failures.push(failure);
+            }
+        }
+        let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
+        supervisor.kill_silent(&self.last_heard, timeout);
+        supervisor.check(&self.failures, self.progress.weights_version)
+    }
+}
+
+/// The name of the role a status report comes from.
+fn reporter(report: &Status) -> Option<String> {
+    match *report {
+        Status::Buffer { .. } => Some(Role::Buffer.name().into()),
+        Status::Learner { .. } => Some(Role::Learner.name().into()),
+        Status::Actor {
+            actor, incarnation, ..
+        } => Some(
+            RoleId::Actor(ActorId {
+                index: actor,
+                incarnation,
+            })
+            .name(),
+        ),
+        Status::Failed { .. } => None,
     }
 }

@@ -1,13 +1,10 @@
 //! Supervision of a run's roles: starting each as a child process (or a thread), noticing
 //! when one exits, restarting a crashed actor as its next incarnation, stopping roles of one
-//! kind in order, killing what does not stop; and the signals the launcher answers.
+//! kind in order, killing what does not stop, and the faults it saw.
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -17,9 +14,9 @@ use wire::{ChannelTransport, Control, Message, Outbox, Role};
 
 use crate::actor::ActorId;
 use crate::config::RunConfig;
-use crate::progress::Fault;
 use crate::role::{RoleId, StartFrom, run_role};
 use crate::run_dir::RunDir;
+use crate::worker::Worker;
 use crate::{Lifeline, write_json};
 
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
@@ -30,46 +27,6 @@ const MAX_LEARNER_RESTARTS: u32 = 3;
 const HUNG: &str = "sent no status report";
 /// How long a role may take to stop once told to.
 const STOP_TIMEOUT: Duration = Duration::from_secs(120);
-
-/// A running role: a child process, or a thread of this one.
-enum Worker {
-    Process(Child),
-    Thread(Option<JoinHandle<Result<()>>>),
-}
-
-impl Worker {
-    /// `None` while it runs; then `Ok` for a clean exit or why it did not exit cleanly.
-    fn finished(&mut self) -> Option<Result<(), String>> {
-        match self {
-            Worker::Process(child) => match child.try_wait() {
-                Ok(None) => None,
-                Ok(Some(status)) if status.success() => Some(Ok(())),
-                Ok(Some(status)) => Some(Err(format!("exited with {status}"))),
-                Err(e) => Some(Err(format!("cannot be waited for: {e}"))),
-            },
-            // Joined once, when it finished; the slot is done after that.
-            Worker::Thread(handle) => handle.take_if(|h| h.is_finished()).map(|h| match h.join() {
-                Ok(Ok(())) => Ok(()),
-                Ok(Err(e)) => Err(format!("{e:#}")),
-                Err(_) => Err("panicked".into()),
-            }),
-        }
-    }
-
-    fn kill(&mut self) {
-        if let Worker::Process(child) = self {
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-    }
-
-    fn pid(&self) -> Option<u32> {
-        match self {
-            Worker::Process(child) => Some(child.id()),
-            Worker::Thread(_) => None,
-        }
-    }
-}
 
 /// How the launcher starts roles.
 pub enum Wiring {
@@ -422,37 +379,18 @@ fn last_error(log: &Path) -> Option<String> {
     )
 }
 
-/// What the launcher's signal handlers raise.
-pub struct Signals {
-    /// Ctrl-C or SIGTERM: stop the run.
-    interrupted: Arc<AtomicBool>,
-    /// SIGUSR1 (`kill -USR1 <launcher>`): the buffer snapshots now.
-    snapshot: Arc<AtomicBool>,
-}
-
-impl Signals {
-    pub fn install() -> Result<Self> {
-        use signal_hook::consts::{SIGINT, SIGTERM, SIGUSR1};
-        let interrupted = Arc::new(AtomicBool::new(false));
-        for signal in [SIGINT, SIGTERM] {
-            signal_hook::flag::register(signal, interrupted.clone())
-                .context("installing the Ctrl-C handler")?;
-        }
-        let snapshot = Arc::new(AtomicBool::new(false));
-        signal_hook::flag::register(SIGUSR1, snapshot.clone())
-            .context("installing the SIGUSR1 handler")?;
-        Ok(Self {
-            interrupted,
-            snapshot,
-        })
-    }
-
-    pub fn interrupted(&self) -> bool {
-        self.interrupted.load(Ordering::SeqCst)
-    }
-
-    /// Whether a snapshot was asked for since the last call.
-    pub fn snapshot_asked(&self) -> bool {
-        self.snapshot.swap(false, Ordering::SeqCst)
-    }
+/// A role that failed during a run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Fault {
+    /// The role's name (`actor-0-1`, `learner`, ...).
+    pub role: String,
+    /// Seconds from the launcher's start to when it noticed.
+    pub at_s: f64,
+    pub cause: String,
+    /// Whether it was started again and the run went on.
+    pub restarted: bool,
+    /// For an actor: the messages of its stream that never reached the buffer (filled in
+    /// from the buffer's counts when the run ends).
+    #[serde(default)]
+    pub lost_messages: Option<u64>,
 }

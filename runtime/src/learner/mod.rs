@@ -7,7 +7,6 @@
 //! learner was restarted, what its predecessor published past the checkpoint resumed), so
 //! it only grows, across `--resume` and restarts.
 
-use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
@@ -20,18 +19,16 @@ use qnet::{NetInput, QNets};
 use serde::{Deserialize, Serialize};
 use sim::Primitive;
 use wire::{
-    BatchMessage, Inbox, Message, Outbox, PriorityUpdate, Role, SampleRequest, Status, Topic,
-    Transport, Weights,
+    BatchMessage, Inbox, Message, Outbox, PriorityUpdate, Role, Status, Topic, Transport, Weights,
 };
+
+mod requests;
 
 use super::config::RunConfig;
 use super::record::{LEARNER_UPDATE, UpdateRecord};
 use super::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
 use super::{Lifeline, STATUS_EVERY, stop_requested};
-
-const IN_FLIGHT: usize = 2;
-/// The counter bits of a sample request's id (below the learner's incarnation).
-const COUNTER: u64 = (1 << 48) - 1;
+use requests::Requests;
 
 /// What the learner did, written to the run directory when it stops.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -146,52 +143,6 @@ impl Ports {
             weights: Outbox::open(transport, Topic::Weights)?,
             status: Outbox::open(transport, Topic::Status)?,
         })
-    }
-}
-
-/// The sample requests sent and not yet answered, oldest first. Ids carry the learner's
-/// incarnation in their top bits, so a restarted learner knows the answers to its
-/// predecessor's requests.
-struct Requests {
-    next: u64,
-    in_flight: VecDeque<u64>,
-}
-
-impl Requests {
-    fn new(incarnation: u32) -> Self {
-        Self {
-            next: u64::from(incarnation) << 48,
-            in_flight: VecDeque::new(),
-        }
-    }
-
-    /// Asks for batches until [`IN_FLIGHT`] are on their way, taking the stage's trained
-    /// nets' primitives in turn.
-    fn keep_in_flight(&mut self, requests: &mut Outbox, config: &RunConfig) -> Result<()> {
-        let nets = config.trained_nets();
-        while self.in_flight.len() < IN_FLIGHT {
-            let request = SampleRequest {
-                id: self.next,
-                primitive: nets[(self.next & COUNTER) as usize % nets.len()].primitive(),
-                size: config.learner.batch_size,
-            };
-            requests.send(&Message::SampleRequest(request))?;
-            self.in_flight.push_back(request.id);
-            self.next += 1;
-        }
-        Ok(())
-    }
-
-    /// Whether `batch` answers one of this learner's requests (else a predecessor's), which
-    /// must be the oldest.
-    fn answered(&mut self, batch: &BatchMessage) -> Result<bool> {
-        if batch.request >> 48 != self.next >> 48 {
-            return Ok(false);
-        }
-        if self.in_flight.pop_front() != Some(batch.request) {
-            bail!("the buffer answered request {} out of order", batch.request);
-        }
-        Ok(true)
     }
 }
 
