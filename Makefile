@@ -28,6 +28,7 @@ bench:
 	$(CARGO) run --release -- bench learner
 	$(CARGO) run --release -- bench learner --config configs/stage1.toml
 	$(CARGO) run --release -- bench transport
+	$(CARGO) run --release -- bench hosts
 	$(CARGO) run --release -- bench buffer
 	$(CARGO) run --release -- bench e2e
 	$(CARGO) run --release -- bench logging

@@ -14,6 +14,7 @@ use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig
 use sim::MaskShape;
 
 mod e2e;
+mod hosts;
 mod logging;
 mod peer;
 mod python;
@@ -39,6 +40,9 @@ pub enum BenchCommand {
     /// The transport: 0.5 MB steps from 1, 2 and 4 processes to one subscriber through
     /// iceoryx2 shared memory, beside Unix sockets and memcpy; iceoryx2's latency.
     Transport(transport::TransportBenchArgs),
+    /// The link between hosts: real-size steps through Zenoh over loopback beside a plain
+    /// TCP socket, and the weights reaching 4 joined hosts.
+    Hosts(hosts::HostsBenchArgs),
 }
 
 #[derive(Args)]
@@ -104,6 +108,7 @@ pub fn run(command: BenchCommand) -> Result<()> {
         BenchCommand::E2e(args) => e2e::bench_e2e(&args),
         BenchCommand::Logging(args) => logging::bench_logging(&args),
         BenchCommand::Transport(args) => transport::bench_transport(&args),
+        BenchCommand::Hosts(args) => hosts::bench_hosts(&args),
     }
 }
 

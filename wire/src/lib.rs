@@ -22,6 +22,6 @@ pub use message::{
     BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role, SampleRequest,
     Status, Step, Weights,
 };
-pub use shm::{MAX_RUN_ID, ShmTransport, StaleCleanup};
+pub use shm::{MAX_RUN_ID, SHM_PREFIX_VAR, ShmTransport, StaleCleanup};
 pub use topic::{Delivery, Topic};
 pub use transport::{Inbox, Outbox, Publisher, Subscriber, Transport};

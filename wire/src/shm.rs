@@ -32,8 +32,8 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::PortFactory as _;
 use iceoryx2::prelude::{
-    AllocationStrategy, BackpressureStrategy, CallbackProgression, Config, Node, NodeBuilder,
-    NodeName, NodeState, ServiceName, SignalHandlingMode, ipc,
+    AllocationStrategy, BackpressureStrategy, CallbackProgression, Config, FileName, Node,
+    NodeBuilder, NodeName, NodeState, SemanticString, ServiceName, SignalHandlingMode, ipc,
 };
 use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
@@ -94,7 +94,7 @@ impl ShmTransport {
             .name(&name)
             // The roles handle SIGINT and SIGTERM themselves.
             .signal_handling_mode(SignalHandlingMode::Disabled)
-            .config(&config())
+            .config(&config()?)
             .create::<ipc::Service>()
             .map_err(|e| TransportError::Setup {
                 why: format!("cannot create the iceoryx2 node {name}: {e}"),
@@ -119,7 +119,7 @@ impl ShmTransport {
         let of_run = |name: Option<&str>| name.is_some_and(|n| n.starts_with(&prefix));
         let mut dead = Vec::new();
         let mut report = StaleCleanup::default();
-        Node::<ipc::Service>::list(&config(), |state| {
+        Node::<ipc::Service>::list(&config()?, |state| {
             match state {
                 NodeState::Alive(view) => {
                     if let Some(details) = view.details()
@@ -215,10 +215,23 @@ fn kept(topic: Topic) -> usize {
 /// How long a subscriber keeps a message back at most (see `kept`).
 const KEPT_AT_MOST: Duration = Duration::from_micros(250);
 
+/// The environment variable that gives this machine's iceoryx2 files another prefix than
+/// iceoryx2's own (`iox2_`): processes under different prefixes share no memory. Several
+/// simulated hosts on one machine each set their own (the tests do).
+pub const SHM_PREFIX_VAR: &str = "PUSHGRASP_SHM_PREFIX";
+
 /// iceoryx2's defaults (shared memory in /dev/shm, its files in /tmp/iceoryx2), never a
-/// configuration file found on the machine: every process of a run must agree.
-fn config() -> Config {
-    Config::default()
+/// configuration file found on the machine: every process of a run must agree. Only the
+/// prefix may be set, by [`SHM_PREFIX_VAR`].
+fn config() -> Result<Config, TransportError> {
+    let mut config = Config::default();
+    if let Some(prefix) = std::env::var_os(SHM_PREFIX_VAR) {
+        config.global.prefix =
+            FileName::new(prefix.as_encoded_bytes()).map_err(|e| TransportError::Setup {
+                why: format!("{SHM_PREFIX_VAR}={prefix:?} is not a file name prefix ({e:?})"),
+            })?;
+    }
+    Ok(config)
 }
 
 fn service_name(run_id: &str, topic: Topic) -> String {

@@ -1,0 +1,233 @@
+//! Which hosts may join a run and where their actors stand: each host's actor indices (after
+//! the central host's own, kept when it joins again, and across `--resume` in `hosts.json`),
+//! and what the run received from it.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+
+use crate::join::{JoinReply, JoinRequest, Placement};
+
+/// Incarnations between two joins of one host: above the restarts of an actor index a host
+/// makes before it gives up.
+pub const INCARNATIONS_PER_JOIN: u32 = 100;
+
+/// What the central host admits hosts to.
+pub struct Admission {
+    pub run_id: String,
+    /// The run's resolved config (TOML), handed to every host.
+    pub config: String,
+    /// Actors of the central host itself: indices `0..local_actors`; hosts' come after.
+    pub local_actors: u32,
+    /// Where the hosts' places are kept, so a resumed run gives a host the same indices.
+    pub hosts_file: PathBuf,
+}
+
+/// A joined host as the run records it (`hosts.json`, and the run's summary).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct HostReport {
+    pub host: String,
+    /// Its actors are indices `first_actor..first_actor + actors`.
+    pub first_actor: u32,
+    pub actors: u32,
+    /// Times it joined (1 for a host that never left).
+    pub joins: u32,
+    /// Whether its session is present now.
+    pub alive: bool,
+    /// Whether it said it had sent all it will (at the run's stop).
+    pub done: bool,
+    /// Times its session was lost (killed, or its link dropped past Zenoh's lease).
+    pub lost_links: u32,
+    pub steps_received: u64,
+    pub episode_ends_received: u64,
+    /// Messages refused: not a step or an episode end, of an actor not its own, damaged.
+    pub rejected: u64,
+    /// Steps its actors reported sent that never arrived (a host that died mid-send).
+    pub lost_in_flight: u64,
+    /// Each actor stream's newest report: (index, incarnation) -> (steps sent, received).
+    #[serde(skip)]
+    pub(crate) streams: BTreeMap<(u32, u32), (u64, u64)>,
+}
+
+impl HostReport {
+    pub(crate) fn owns(&self, actor: u32) -> bool {
+        (self.first_actor..self.first_actor + self.actors).contains(&actor)
+    }
+
+    pub(crate) fn count_lost(&mut self) {
+        self.lost_in_flight = self
+            .streams
+            .values()
+            .map(|&(sent, received)| sent.saturating_sub(received))
+            .sum();
+    }
+}
+
+/// The hosts of the run, shared by the bridge's threads.
+pub(crate) struct Hosts {
+    admission: Admission,
+    pub(crate) hosts: BTreeMap<String, HostReport>,
+    /// No host is admitted once the run is stopping.
+    pub(crate) closing: bool,
+    /// Hosts whose session ended, in order (for the run's faults).
+    pub(crate) losses: Vec<String>,
+}
+
+impl Hosts {
+    pub(crate) fn load(admission: Admission) -> Result<Self> {
+        let mut hosts = BTreeMap::new();
+        if admission.hosts_file.exists() {
+            let path = &admission.hosts_file;
+            let text =
+                std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+            let saved: Vec<HostReport> = serde_json::from_slice(&text)
+                .with_context(|| format!("reading {}", path.display()))?;
+            for mut host in saved {
+                host.alive = false;
+                host.done = false;
+                hosts.insert(host.host.clone(), host);
+            }
+        }
+        Ok(Self {
+            admission,
+            hosts,
+            closing: false,
+            losses: Vec::new(),
+        })
+    }
+
+    pub(crate) fn save(&self) -> Result<()> {
+        let path = &self.admission.hosts_file;
+        let tmp = path.with_extension("json.tmp");
+        let hosts: Vec<&HostReport> = self.hosts.values().collect();
+        std::fs::write(&tmp, serde_json::to_vec_pretty(&hosts)?)
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Gives a host its place, or says why not. The same host joining again with as many
+    /// actors keeps its indices, as its next incarnations.
+    pub(crate) fn admit(&mut self, request: &JoinRequest) -> JoinReply {
+        let refuse = |why: String| JoinReply::Refused(why);
+        if self.closing {
+            return refuse("the run is stopping".into());
+        }
+        if request.run_id != self.admission.run_id {
+            return refuse(format!(
+                "this is run {:?}, not {:?}",
+                self.admission.run_id, request.run_id
+            ));
+        }
+        if request.actors == 0 || request.host.is_empty() || request.host.contains(['/', '*']) {
+            return refuse("a host needs a name without '/' or '*' and at least 1 actor".into());
+        }
+        let next_free = self
+            .hosts
+            .values()
+            .map(|h| h.first_actor + h.actors)
+            .fold(self.admission.local_actors, u32::max);
+        let host = self
+            .hosts
+            .entry(request.host.clone())
+            .or_insert_with(|| HostReport {
+                host: request.host.clone(),
+                first_actor: next_free,
+                actors: request.actors,
+                ..HostReport::default()
+            });
+        if host.actors != request.actors {
+            return refuse(format!(
+                "host {:?} joined this run before with {} actors: join with as many, or under \
+                 another --host-name",
+                host.host, host.actors
+            ));
+        }
+        let placement = Placement {
+            first_actor: host.first_actor,
+            incarnation: host.joins * INCARNATIONS_PER_JOIN,
+            config: self.admission.config.clone(),
+        };
+        host.joins += 1;
+        host.done = false;
+        match self.save() {
+            Ok(()) => JoinReply::Accepted(placement),
+            Err(e) => refuse(format!("the central host cannot record the join: {e:#}")),
+        }
+    }
+
+    pub(crate) fn host(&mut self, name: &str) -> &mut HostReport {
+        self.hosts
+            .entry(name.to_owned())
+            .or_insert_with(|| HostReport {
+                host: name.to_owned(),
+                ..HostReport::default()
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hosts(dir: &std::path::Path) -> Hosts {
+        Hosts::load(Admission {
+            run_id: "r".into(),
+            config: "stage = 1".into(),
+            local_actors: 2,
+            hosts_file: dir.join("hosts.json"),
+        })
+        .unwrap()
+    }
+
+    fn request(host: &str, actors: u32) -> JoinRequest {
+        JoinRequest {
+            run_id: "r".into(),
+            host: host.into(),
+            actors,
+        }
+    }
+
+    fn accepted(reply: JoinReply) -> Placement {
+        match reply {
+            JoinReply::Accepted(placement) => placement,
+            JoinReply::Refused(why) => panic!("refused: {why}"),
+        }
+    }
+
+    #[test]
+    fn hosts_get_indices_after_the_local_actors_and_keep_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut table = hosts(dir.path());
+        let a = accepted(table.admit(&request("a", 3)));
+        let b = accepted(table.admit(&request("b", 2)));
+        assert_eq!((a.first_actor, a.incarnation), (2, 0));
+        assert_eq!((b.first_actor, b.incarnation), (5, 0));
+        assert_eq!(a.config, "stage = 1");
+        // Joining again: the same indices, later incarnations; kept across a resume.
+        let again = accepted(hosts(dir.path()).admit(&request("a", 3)));
+        assert_eq!(
+            (again.first_actor, again.incarnation),
+            (2, INCARNATIONS_PER_JOIN)
+        );
+    }
+
+    #[test]
+    fn bad_joins_are_refused_with_the_reason() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut table = hosts(dir.path());
+        accepted(table.admit(&request("a", 3)));
+        let refused = |reply| match reply {
+            JoinReply::Refused(why) => why,
+            JoinReply::Accepted(_) => panic!("accepted"),
+        };
+        assert!(refused(table.admit(&request("a", 4))).contains("before with 3 actors"));
+        assert!(refused(table.admit(&request("c", 0))).contains("at least 1 actor"));
+        let mut other_run = request("c", 1);
+        other_run.run_id = "s".into();
+        assert!(refused(table.admit(&other_run)).contains("not \"s\""));
+        table.closing = true;
+        assert!(refused(table.admit(&request("c", 1))).contains("stopping"));
+    }
+}

@@ -1,0 +1,407 @@
+//! The central host's bridge: admits joining hosts, takes their steps into the local steps
+//! topic (where the buffer reads them like any local actor's), their actors' progress into
+//! the local status topic, and sends the learner's weights and the launcher's orders to every
+//! host at once. Three threads: joins, up (steps and reports), down (weights, orders, which
+//! hosts are alive).
+//!
+//! Each host has a few parcels in flight at most: the central host acknowledges each parcel
+//! once its steps are in the steps topic (see [`crate::parcel`]), so Zenoh's reader of a
+//! host's link never waits on the buffer, and keeps reading what keeps the session alive.
+//!
+//! A message from a host enters only if it is a step or an episode end of one of the actors
+//! that host was given; anything else is counted as rejected, never passed on.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use wire::{Message, Status, Topic, Transport};
+use zenoh::Wait;
+use zenoh::sample::SampleKind;
+use zenoh::{Session, liveliness::LivelinessToken};
+
+use crate::admission::{Admission, HostReport, Hosts};
+use crate::join::{self, JoinReply, JoinRequest};
+use crate::link::{self, Keys, Stream};
+use crate::parcel::{self, Parcel};
+
+/// How long each thread waits for news before it looks at its stop flag.
+const POLL: Duration = Duration::from_millis(50);
+
+/// The central host's bridge, running until [`Central::close`].
+pub struct Central {
+    session: Session,
+    hosts: Arc<Mutex<Hosts>>,
+    stop: Arc<AtomicBool>,
+    threads: Vec<JoinHandle<Result<()>>>,
+    _token: LivelinessToken,
+}
+
+impl Central {
+    /// Starts the bridge on `session` (see [`crate::session::listen`]), taking hosts' steps
+    /// into `transport`'s steps topic. The buffer must listen already.
+    pub fn start(
+        session: Session,
+        transport: Arc<dyn Transport + Send + Sync>,
+        admission: Admission,
+    ) -> Result<Self> {
+        let keys = Keys::new(&admission.run_id);
+        let hosts = Arc::new(Mutex::new(Hosts::load(admission)?));
+        let stop = Arc::new(AtomicBool::new(false));
+        let resend = Arc::new(AtomicBool::new(false));
+        let mut threads = Vec::new();
+        let spawn = |name: &str, body: Box<dyn FnOnce() -> Result<()> + Send>| {
+            std::thread::Builder::new()
+                .name(name.into())
+                .spawn(body)
+                .with_context(|| format!("starting the bridge's {name} thread"))
+        };
+        {
+            let (session, keys, hosts, stop) =
+                (session.clone(), keys.clone(), hosts.clone(), stop.clone());
+            threads.push(spawn(
+                "bridge-joins",
+                Box::new(move || answer_joins(&session, &keys, &hosts, &stop)),
+            )?);
+        }
+        {
+            let (session, keys, hosts, stop, resend, transport) = (
+                session.clone(),
+                keys.clone(),
+                hosts.clone(),
+                stop.clone(),
+                resend.clone(),
+                transport.clone(),
+            );
+            threads.push(spawn(
+                "bridge-up",
+                Box::new(move || {
+                    carry_up(&session, &keys, &hosts, &stop, &resend, transport.as_ref())
+                }),
+            )?);
+        }
+        {
+            let (session, keys, stop) = (session.clone(), keys.clone(), stop.clone());
+            threads.push(spawn(
+                "bridge-down",
+                Box::new(move || carry_down(&session, &keys, &stop, &resend, transport.as_ref())),
+            )?);
+        }
+        let token = session
+            .liveliness()
+            .declare_token(keys.central())
+            .wait()
+            .map_err(|e| anyhow::anyhow!("declaring the central host's presence: {e}"))?;
+        Ok(Self {
+            session,
+            hosts,
+            stop,
+            threads,
+            _token: token,
+        })
+    }
+
+    fn hosts(&self) -> MutexGuard<'_, Hosts> {
+        lock(&self.hosts)
+    }
+
+    /// Every host the run has seen, with its counts now.
+    pub fn report(&self) -> Vec<HostReport> {
+        self.hosts().hosts.values().cloned().collect()
+    }
+
+    /// Hosts whose session ended since the last call.
+    pub fn take_losses(&self) -> Vec<String> {
+        std::mem::take(&mut self.hosts().losses)
+    }
+
+    /// Whether a bridge thread has failed (its error comes with [`Central::close`]).
+    pub fn failed(&self) -> bool {
+        self.threads.iter().any(JoinHandle::is_finished)
+    }
+
+    /// Refuses further joins, then waits until every live host has said it is done (they
+    /// stop when the launcher's order to stop the actors reaches them) or `timeout` passes.
+    /// Returns the hosts that did not finish.
+    pub fn wait_for_hosts(&self, timeout: Duration) -> Vec<String> {
+        self.hosts().closing = true;
+        let deadline = Instant::now() + timeout;
+        loop {
+            let waiting: Vec<String> = self
+                .hosts()
+                .hosts
+                .values()
+                .filter(|h| h.alive && !h.done)
+                .map(|h| h.host.clone())
+                .collect();
+            if waiting.is_empty() || Instant::now() > deadline || self.failed() {
+                return waiting;
+            }
+            std::thread::sleep(POLL);
+        }
+    }
+
+    /// Stops the bridge and closes the session; returns the hosts' final counts.
+    pub fn close(self) -> Result<Vec<HostReport>> {
+        self.stop.store(true, Ordering::Release);
+        let mut outcome = Ok(());
+        for thread in self.threads {
+            let result = thread
+                .join()
+                .unwrap_or_else(|_| Err(anyhow::anyhow!("a bridge thread panicked")));
+            if outcome.is_ok() {
+                outcome = result;
+            }
+        }
+        let report = {
+            let hosts = lock(&self.hosts);
+            let _ = hosts.save();
+            hosts.hosts.values().cloned().collect()
+        };
+        self.session
+            .close()
+            .wait()
+            .map_err(|e| anyhow::anyhow!("closing the Zenoh session: {e}"))?;
+        outcome.map(|()| report)
+    }
+}
+
+fn lock(hosts: &Mutex<Hosts>) -> MutexGuard<'_, Hosts> {
+    hosts.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn zenoh_error(what: &str) -> impl FnOnce(zenoh::Error) -> anyhow::Error + '_ {
+    move |e| anyhow::anyhow!("{what}: {e}")
+}
+
+/// Answers join queries until stopped.
+fn answer_joins(
+    session: &Session,
+    keys: &Keys,
+    hosts: &Mutex<Hosts>,
+    stop: &AtomicBool,
+) -> Result<()> {
+    let queryable = session
+        .declare_queryable(keys.join())
+        .wait()
+        .map_err(zenoh_error("declaring the join queryable"))?;
+    while !stop.load(Ordering::Acquire) {
+        let Some(query) = queryable
+            .recv_timeout(POLL)
+            .map_err(zenoh_error("receiving a join"))?
+        else {
+            continue;
+        };
+        let bytes = query.payload().map(|p| p.to_bytes()).unwrap_or_default();
+        let reply = match join::decode::<JoinRequest>(&bytes) {
+            Ok(request) => lock(hosts).admit(&request),
+            Err(e) => JoinReply::Refused(e.to_string()),
+        };
+        if let JoinReply::Refused(why) = &reply {
+            eprintln!("refused a host: {why}");
+        }
+        query
+            .reply(query.key_expr().clone(), join::encode(&reply))
+            .wait()
+            .map_err(zenoh_error("answering a join"))?;
+    }
+    Ok(())
+}
+
+/// Hosts' steps into the local steps topic, their actors' reports into the local status
+/// topic, which hosts come and go, until stopped. A host's leaving is judged only once the
+/// steps queue is empty: its last parcel (done or not) arrived before its session ended.
+fn carry_up(
+    session: &Session,
+    keys: &Keys,
+    hosts: &Mutex<Hosts>,
+    stop: &AtomicBool,
+    resend: &AtomicBool,
+    transport: &dyn Transport,
+) -> Result<()> {
+    let steps_in = link::subscriber(session, keys.every_host(Stream::Steps))?;
+    let status_in = link::newest_subscriber(session, keys.every_host(Stream::Status))?;
+    let presence = session
+        .liveliness()
+        .declare_subscriber(keys.every_host_token())
+        .history(true)
+        .wait()
+        .map_err(zenoh_error("watching the hosts"))?;
+    let mut steps_out = transport.publisher(Topic::Steps)?;
+    let mut status_out = transport.publisher(Topic::Status)?;
+    while !stop.load(Ordering::Acquire) {
+        while let Some(sample) = status_in
+            .try_recv()
+            .map_err(zenoh_error("receiving a report"))?
+        {
+            if let Some(host) = keys.host_of(Stream::Status, sample.key_expr().as_str()) {
+                take_report(
+                    &mut lock(hosts),
+                    host,
+                    &sample.payload().to_bytes(),
+                    &mut *status_out,
+                )?;
+            }
+        }
+        let mut took = false;
+        while let Some(sample) = steps_in
+            .try_recv()
+            .map_err(zenoh_error("receiving steps"))?
+        {
+            took = true;
+            if let Some(host) = keys.host_of(Stream::Steps, sample.key_expr().as_str()) {
+                let number =
+                    take_parcel(hosts, host, &sample.payload().to_bytes(), &mut *steps_out)?;
+                if let Some(number) = number {
+                    link::put(
+                        session,
+                        Stream::Taken,
+                        keys.stream(Stream::Taken, host),
+                        number.to_le_bytes().to_vec(),
+                    )?;
+                }
+            }
+        }
+        while let Some(sample) = presence
+            .try_recv()
+            .map_err(zenoh_error("watching the hosts"))?
+        {
+            let Some(name) = sample.key_expr().as_str().rsplit('/').next() else {
+                continue;
+            };
+            let mut hosts = lock(hosts);
+            let host = hosts.host(name);
+            if sample.kind() == SampleKind::Put {
+                host.alive = true;
+                resend.store(true, Ordering::Release);
+            } else if host.alive {
+                host.alive = false;
+                // Done: it said it had sent everything, and leaving is what it should do.
+                if !host.done {
+                    host.lost_links += 1;
+                    let lost = host.host.clone();
+                    hosts.losses.push(lost);
+                }
+            }
+        }
+        if !took {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+    Ok(())
+}
+
+/// An actor's progress report from `host`: passed on if the actor is the host's own.
+fn take_report(
+    hosts: &mut Hosts,
+    host: &str,
+    bytes: &[u8],
+    status_out: &mut dyn wire::Publisher,
+) -> Result<()> {
+    let host = hosts.host(host);
+    match wire::decode(bytes) {
+        Ok(Message::Status(Status::Actor {
+            actor,
+            incarnation,
+            steps_sent,
+            ..
+        })) if host.owns(actor) => {
+            host.streams.entry((actor, incarnation)).or_default().0 = steps_sent;
+            host.count_lost();
+            status_out.send(bytes)?;
+        }
+        _ => host.rejected += 1,
+    }
+    Ok(())
+}
+
+/// A parcel from `host`: its steps and episode ends into the steps topic, when they are its
+/// actors'. Returns the parcel's number once taken (None for a damaged one).
+fn take_parcel(
+    hosts: &Mutex<Hosts>,
+    host: &str,
+    bytes: &[u8],
+    steps_out: &mut dyn wire::Publisher,
+) -> Result<Option<u64>> {
+    let (number, messages) = match parcel::unpack(bytes) {
+        Ok((number, Parcel::Messages(messages))) => (number, messages),
+        Ok((number, Parcel::Done)) => {
+            lock(hosts).host(host).done = true;
+            return Ok(Some(number));
+        }
+        Err(e) => {
+            eprintln!("host {host}: {e}");
+            lock(hosts).host(host).rejected += 1;
+            return Ok(None);
+        }
+    };
+    for message in messages {
+        // Checked under the lock, sent outside it: the buffer may hold a step back.
+        let admitted = {
+            let mut hosts = lock(hosts);
+            let host = hosts.host(host);
+            let admitted = match wire::decode(&message) {
+                Ok(Message::Step(step)) if host.owns(step.origin.actor) => {
+                    host.steps_received += 1;
+                    let origin = step.origin;
+                    host.streams
+                        .entry((origin.actor, origin.incarnation))
+                        .or_default()
+                        .1 += 1;
+                    true
+                }
+                Ok(Message::EpisodeEnd(end)) if host.owns(end.origin.actor) => {
+                    host.episode_ends_received += 1;
+                    true
+                }
+                _ => false,
+            };
+            if !admitted {
+                host.rejected += 1;
+            }
+            host.count_lost();
+            admitted
+        };
+        if admitted {
+            steps_out.send(&message)?;
+        }
+    }
+    Ok(Some(number))
+}
+
+/// The learner's weights and the launcher's orders to every host, the newest of each again
+/// whenever a host appears (`resend`).
+fn carry_down(
+    session: &Session,
+    keys: &Keys,
+    stop: &AtomicBool,
+    resend: &AtomicBool,
+    transport: &dyn Transport,
+) -> Result<()> {
+    let mut weights_in = transport.subscriber(Topic::Weights)?;
+    let mut control_in = transport.subscriber(Topic::Control)?;
+    let mut newest: [Option<Vec<u8>>; 2] = [None, None];
+    while !stop.load(Ordering::Acquire) {
+        let resend = resend.swap(false, Ordering::AcqRel);
+        let mut busy = false;
+        for (slot, (subscriber, stream)) in newest.iter_mut().zip([
+            (&mut weights_in, Stream::Weights),
+            (&mut control_in, Stream::Control),
+        ]) {
+            let mut fresh = false;
+            while subscriber.receive(&mut |bytes| *slot = Some(bytes.to_vec()))? {
+                fresh = true;
+            }
+            busy |= fresh;
+            if let Some(bytes) = slot.as_ref().filter(|_| fresh || resend) {
+                link::put(session, stream, keys.stream(stream, ""), bytes.clone())?;
+            }
+        }
+        if !busy {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+    Ok(())
+}

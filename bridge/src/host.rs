@@ -1,0 +1,401 @@
+//! A joined host's bridge: asks the central host for a place, then carries the local actors'
+//! steps and episode ends up in parcels, and their progress reports; and brings the weights
+//! down into the local weights topic and tells when the run ordered the actors to stop or
+//! the central host is gone. Two threads: up and down.
+//!
+//! Steps are published only while the central host listens: while it does not (its link is
+//! down), the up thread holds its parcel and stops reading, so the actors wait on their
+//! bounded queues; memory does not grow.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use wire::{Control, Message, Role, Status, Topic, Transport};
+use zenoh::Wait;
+use zenoh::handlers::RingChannelHandler;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::{Session, query::QueryTarget};
+
+use crate::join::{self, JoinReply, JoinRequest, Placement};
+use crate::link::{self, Keys, PARCELS_IN_FLIGHT, Stream};
+use crate::parcel::{self, Packer};
+
+/// How long a join waits for the central host's answer.
+const JOIN_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// How often a waiting thread looks again.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Asks the central host for a place in the run.
+pub fn join(session: &Session, keys: &Keys, request: &JoinRequest) -> Result<Placement> {
+    let replies = session
+        .get(keys.join())
+        .payload(join::encode(request))
+        .target(QueryTarget::All)
+        .timeout(JOIN_TIMEOUT)
+        .wait()
+        .map_err(|e| anyhow::anyhow!("asking to join: {e}"))?;
+    let reply = replies.recv().map_err(|_| {
+        anyhow::anyhow!(
+            "run {:?} did not answer within {JOIN_TIMEOUT:?}: is it started with --listen, \
+                 and is it this run?",
+            request.run_id
+        )
+    })?;
+    let sample = reply
+        .result()
+        .map_err(|e| anyhow::anyhow!("the central host could not answer: {e:?}"))?;
+    match join::decode::<JoinReply>(&sample.payload().to_bytes())
+        .context("the central host's answer")?
+    {
+        JoinReply::Accepted(placement) => Ok(placement),
+        JoinReply::Refused(why) => bail!("the central host refused to let us join: {why}"),
+    }
+}
+
+/// What the up thread did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct UpReport {
+    /// Wire messages published (steps and episode ends).
+    pub messages: u64,
+    pub parcels: u64,
+    pub raw_bytes: u64,
+    pub sent_bytes: u64,
+    /// Messages thrown away because the central host was gone for good.
+    pub abandoned: u64,
+}
+
+/// Flags the join loop and the bridge's threads share.
+#[derive(Default)]
+struct Flags {
+    /// The actors have stopped: send what is left, then say done.
+    finishing: AtomicBool,
+    /// The central host is gone for good: drain the actors' steps without sending them.
+    abandon: AtomicBool,
+    /// The run ordered the actors to stop.
+    stop_ordered: AtomicBool,
+    /// Set while the central host's presence is seen.
+    central_present: AtomicBool,
+    /// Stop the down thread.
+    closed: AtomicBool,
+    messages: AtomicU64,
+}
+
+/// A joined host's bridge, running until [`HostBridge::finish`].
+pub struct HostBridge {
+    session: Session,
+    flags: Arc<Flags>,
+    /// When the central host was last seen present.
+    central_seen: Arc<Mutex<Instant>>,
+    up: JoinHandle<Result<UpReport>>,
+    down: JoinHandle<Result<()>>,
+    _token: LivelinessToken,
+}
+
+impl HostBridge {
+    /// Starts carrying between `transport` (this host's shared memory) and the central host,
+    /// as `host` of the run. Subscriptions come first, then this host's presence, so the
+    /// central host's re-sent weights find them.
+    pub fn start(
+        session: Session,
+        keys: Keys,
+        host: &str,
+        transport: Arc<dyn Transport + Send + Sync>,
+    ) -> Result<Self> {
+        let flags = Arc::new(Flags::default());
+        let central_seen = Arc::new(Mutex::new(Instant::now()));
+        let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<()>>(1);
+        let down = {
+            let (session, keys, flags, seen, transport) = (
+                session.clone(),
+                keys.clone(),
+                flags.clone(),
+                central_seen.clone(),
+                transport.clone(),
+            );
+            std::thread::Builder::new()
+                .name("bridge-down".into())
+                .spawn(move || {
+                    carry_down(&session, &keys, &flags, &seen, transport.as_ref(), ready_tx)
+                })?
+        };
+        ready_rx
+            .recv()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the bridge's down thread ended")))?;
+        let up = {
+            let (session, flags, host) = (session.clone(), flags.clone(), host.to_owned());
+            let keys = keys.clone();
+            std::thread::Builder::new()
+                .name("bridge-up".into())
+                .spawn(move || carry_up(&session, &keys, &host, &flags, transport.as_ref()))?
+        };
+        let token = session
+            .liveliness()
+            .declare_token(keys.host(host))
+            .wait()
+            .map_err(|e| anyhow::anyhow!("declaring this host's presence: {e}"))?;
+        Ok(Self {
+            session,
+            flags,
+            central_seen,
+            up,
+            down,
+            _token: token,
+        })
+    }
+
+    /// Whether the run has ordered the actors to stop.
+    pub fn stop_ordered(&self) -> bool {
+        self.flags.stop_ordered.load(Ordering::Acquire)
+    }
+
+    /// How long the central host has been gone (zero while it is present).
+    pub fn central_gone_for(&self) -> Duration {
+        if self.flags.central_present.load(Ordering::Acquire) {
+            Duration::ZERO
+        } else {
+            lock(&self.central_seen).elapsed()
+        }
+    }
+
+    /// Steps and episode ends sent so far.
+    pub fn messages_sent(&self) -> u64 {
+        self.flags.messages.load(Ordering::Relaxed)
+    }
+
+    /// Whether a bridge thread has ended (its error comes with [`HostBridge::finish`]).
+    pub fn failed(&self) -> bool {
+        self.up.is_finished() || self.down.is_finished()
+    }
+
+    /// After the actors stopped: sends what they left and says this host is done, or, when
+    /// `abandon` (the central host is gone), throws it away (counted); then closes the
+    /// session.
+    pub fn finish(self, abandon: bool) -> Result<UpReport> {
+        if abandon {
+            self.flags.abandon.store(true, Ordering::Release);
+        }
+        self.flags.finishing.store(true, Ordering::Release);
+        let up = self
+            .up
+            .join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the bridge's up thread panicked")));
+        self.flags.closed.store(true, Ordering::Release);
+        let down = self
+            .down
+            .join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the bridge's down thread panicked")));
+        self.session
+            .close()
+            .wait()
+            .map_err(|e| anyhow::anyhow!("closing the Zenoh session: {e}"))?;
+        let up = up?;
+        down?;
+        Ok(up)
+    }
+
+    /// Stops waiting for the central host: what is held is thrown away (counted), and
+    /// the actors' queues drain.
+    pub fn abandon(&self) {
+        self.flags.abandon.store(true, Ordering::Release);
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The central host's acknowledgements of this host's parcels.
+struct Window {
+    taken: Subscriber<RingChannelHandler<Sample>>,
+    /// The newest parcel the central host took.
+    newest_taken: u64,
+}
+
+impl Window {
+    /// Waits until parcel `number` may go: the central host listens and has taken all but a
+    /// few of those before it. False when told to abandon. Parcels in flight when the
+    /// central host's subscription went away are not waited for: they arrived or are lost
+    /// (counted by the central host from the actors' reports).
+    fn wait_for_room(
+        &mut self,
+        publisher: &Publisher<'_>,
+        number: u64,
+        flags: &Flags,
+    ) -> Result<bool> {
+        let mut relinked = false;
+        loop {
+            if flags.abandon.load(Ordering::Acquire) {
+                return Ok(false);
+            }
+            while let Some(sample) = self.taken.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
+                if let Some(bytes) = sample.payload().to_bytes().first_chunk::<8>() {
+                    self.newest_taken = self.newest_taken.max(u64::from_le_bytes(*bytes));
+                }
+            }
+            let matching = publisher
+                .matching_status()
+                .wait()
+                .map_err(|e| anyhow::anyhow!("{e}"))?
+                .matching();
+            if !matching {
+                relinked = true;
+            } else {
+                if relinked {
+                    self.newest_taken = self.newest_taken.max(number - 1);
+                    relinked = false;
+                }
+                if number - 1 - self.newest_taken.min(number - 1) < PARCELS_IN_FLIGHT {
+                    return Ok(true);
+                }
+            }
+            std::thread::sleep(POLL);
+        }
+    }
+}
+
+/// The local actors' steps and episode ends up in parcels, their reports as they come.
+fn carry_up(
+    session: &Session,
+    keys: &Keys,
+    host: &str,
+    flags: &Flags,
+    transport: &dyn Transport,
+) -> Result<UpReport> {
+    let mut steps_in = transport.subscriber(Topic::Steps)?;
+    let mut status_in = transport.subscriber(Topic::Status)?;
+    let steps_out = link::publisher(session, Stream::Steps, keys.stream(Stream::Steps, host))?;
+    let status_out = link::publisher(session, Stream::Status, keys.stream(Stream::Status, host))?;
+    let mut window = Window {
+        taken: link::newest_subscriber(session, keys.stream(Stream::Taken, host))?,
+        newest_taken: 0,
+    };
+    let mut report = UpReport::default();
+    let mut packer = Packer::default();
+    loop {
+        // Read before looking at the flag: once finishing is seen, a round that finds
+        // nothing means the stopped actors' last steps are all taken.
+        let finishing = flags.finishing.load(Ordering::Acquire);
+        let mut reports = Vec::new();
+        while status_in.receive(&mut |bytes| {
+            if matches!(
+                wire::decode(bytes),
+                Ok(Message::Status(Status::Actor { .. }))
+            ) {
+                reports.push(bytes.to_vec());
+            }
+        })? {}
+        for bytes in reports {
+            status_out
+                .put(bytes)
+                .wait()
+                .map_err(|e| anyhow::anyhow!("sending a report: {e}"))?;
+        }
+        while !packer.full() && steps_in.receive(&mut |bytes| packer.push(bytes))? {}
+        if packer.is_empty() {
+            if finishing {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+            continue;
+        }
+        let messages = packer.len() as u64;
+        report.raw_bytes += packer.raw_len() as u64;
+        let number = report.parcels + 1;
+        if !window.wait_for_room(&steps_out, number, flags)? {
+            packer.clear();
+            report.abandoned += messages;
+            continue;
+        }
+        let parcel = packer.seal(number);
+        report.sent_bytes += parcel.len() as u64;
+        steps_out
+            .put(parcel)
+            .wait()
+            .map_err(|e| anyhow::anyhow!("sending steps: {e}"))?;
+        report.messages += messages;
+        report.parcels += 1;
+        flags.messages.fetch_add(messages, Ordering::Relaxed);
+    }
+    let number = report.parcels + 1;
+    if window.wait_for_room(&steps_out, number, flags)? {
+        steps_out
+            .put(parcel::done(number))
+            .wait()
+            .map_err(|e| anyhow::anyhow!("saying done: {e}"))?;
+        // Leave once the central host took it (its session may otherwise end first).
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while window.newest_taken < number && Instant::now() < deadline {
+            window.wait_for_room(&steps_out, number + PARCELS_IN_FLIGHT, flags)?;
+            std::thread::sleep(POLL);
+        }
+    }
+    Ok(report)
+}
+
+/// The weights into the local weights topic; the run's order to stop the actors, and the
+/// central host's presence, into the flags.
+fn carry_down(
+    session: &Session,
+    keys: &Keys,
+    flags: &Flags,
+    central_seen: &Mutex<Instant>,
+    transport: &dyn Transport,
+    ready: crossbeam_channel::Sender<Result<()>>,
+) -> Result<()> {
+    let subscriptions = (|| {
+        let weights_in = link::newest_subscriber(session, keys.stream(Stream::Weights, ""))?;
+        let control_in = link::subscriber(session, keys.stream(Stream::Control, ""))?;
+        let central = session
+            .liveliness()
+            .declare_subscriber(keys.central())
+            .history(true)
+            .wait()
+            .map_err(|e| anyhow::anyhow!("watching the central host: {e}"))?;
+        let weights_out = transport.publisher(Topic::Weights)?;
+        anyhow::Ok((weights_in, control_in, central, weights_out))
+    })();
+    let (weights_in, control_in, central, mut weights_out) = match subscriptions {
+        Ok(ends) => {
+            let _ = ready.send(Ok(()));
+            ends
+        }
+        Err(e) => {
+            let _ = ready.send(Err(anyhow::anyhow!("{e:#}")));
+            return Err(e);
+        }
+    };
+    let mut last_refresh = Instant::now();
+    while !flags.closed.load(Ordering::Acquire) {
+        while let Some(sample) = central.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
+            let present = sample.kind() == SampleKind::Put;
+            flags.central_present.store(present, Ordering::Release);
+            *lock(central_seen) = Instant::now();
+        }
+        while let Some(sample) = control_in.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
+            if let Ok(Message::Control(Control::Stop(Role::Actor))) =
+                wire::decode(&sample.payload().to_bytes())
+            {
+                flags.stop_ordered.store(true, Ordering::Release);
+            }
+        }
+        match weights_in
+            .recv_timeout(POLL)
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+        {
+            Some(sample) => weights_out.send(&sample.payload().to_bytes())?,
+            // An actor started since the last weights gets them.
+            None if last_refresh.elapsed() > Duration::from_millis(200) => {
+                weights_out.refresh()?;
+                last_refresh = Instant::now();
+            }
+            None => {}
+        }
+    }
+    Ok(())
+}
