@@ -41,6 +41,8 @@ enum Command {
     Episode(scene_tools::EpisodeArgs),
     /// Train: a buffer, a learner and N actors, as processes over shared memory (or threads).
     Train(runtime::TrainArgs),
+    /// Run actors on this host for a run that listens on another (`train --listen`).
+    Join(runtime::JoinArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
     Pipeline(runtime::pipeline::PipelineArgs),
     /// One role of a training run (started by `train`, not by hand).
@@ -67,6 +69,7 @@ fn main() -> Result<()> {
         Command::Scene(command) => scene_tools::run(command),
         Command::Episode(args) => scene_tools::episode(&args),
         Command::Train(args) => runtime::train(&args),
+        Command::Join(args) => runtime::join(&args),
         Command::Pipeline(args) => runtime::pipeline::run(&args),
         Command::Role(args) => runtime::role_process(&args),
         Command::Eval(args) => eval::run(&args),

@@ -13,7 +13,7 @@ use runtime::buffer::BufferReport;
 use runtime::config::RunConfig;
 use runtime::record::{ACTOR_STEP, BUFFER_EPISODE, BUFFER_STATS, LEARNER_UPDATE};
 use runtime::record::{StepRecord, UpdateRecord};
-use runtime::{SUCCESS_WINDOW, files_with_extension};
+use runtime::{RunDir, SUCCESS_WINDOW, files_with_extension};
 
 /// Curves are drawn every this many episodes.
 const CURVE_EVERY: usize = 10;
@@ -96,12 +96,23 @@ pub fn pipeline_stages(path: &Path) -> Vec<PathBuf> {
     stages
 }
 
-/// The `.mcap` files of a run directory, or the one file given.
+/// The `.mcap` files of a run directory, or the one file given. A run across hosts has its
+/// joined hosts' directories under `hosts/` (gathered there, or written there on a shared
+/// filesystem): their files are the run's too.
 pub fn mcap_files(path: &Path) -> Result<Vec<PathBuf>> {
     if path.is_file() {
         return Ok(vec![path.to_path_buf()]);
     }
-    files_with_extension(path, "mcap")
+    let mut files = files_with_extension(path, "mcap")?;
+    let hosts = RunDir::new(path).hosts();
+    if let Ok(entries) = std::fs::read_dir(&hosts) {
+        let mut dirs: Vec<PathBuf> = entries.flatten().map(|e| e.path()).collect();
+        dirs.sort();
+        for dir in dirs.iter().filter(|d| d.is_dir()) {
+            files.extend(files_with_extension(dir, "mcap").unwrap_or_default());
+        }
+    }
+    Ok(files)
 }
 
 /// The JSON messages on `topic` decoded as `T`; an error names the file and the topic.

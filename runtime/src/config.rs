@@ -76,12 +76,16 @@ pub struct Supervision {
     /// and handled as a crash. The buffer and the learner report four times a second and an
     /// actor once an episode; long enough for a checkpoint or a snapshot to be written.
     pub heartbeat_timeout_s: f64,
+    /// Actors expected on joined hosts (`train --listen`, `join`), beside the central host's
+    /// `actors`: Ape-X's exploration rates spread over all of them.
+    pub remote_actors: u32,
 }
 
 impl Default for Supervision {
     fn default() -> Self {
         Self {
             heartbeat_timeout_s: 30.0,
+            remote_actors: 0,
         }
     }
 }
@@ -155,10 +159,11 @@ pub struct ApexEpsilon {
 }
 
 impl ApexEpsilon {
-    /// The fixed exploration rate of actor `index` of `actors`.
+    /// The fixed exploration rate of actor `index` of `actors` (an index past the last, an
+    /// actor of a host that joined unannounced, explores as the last).
     pub fn for_actor(&self, index: u32, actors: u32) -> f32 {
         let spread = if actors > 1 {
-            f64::from(index) / f64::from(actors - 1)
+            (f64::from(index) / f64::from(actors - 1)).min(1.0)
         } else {
             0.0
         };
@@ -241,8 +246,8 @@ impl RunConfig {
                 self.stage
             );
         }
-        if self.actors == 0 {
-            bail!("actors: must be at least 1");
+        if self.actors == 0 && self.run.remote_actors == 0 {
+            bail!("actors: must be at least 1 (0 only with run.remote_actors on joined hosts)");
         }
         if self.episodes == 0 && self.updates == 0 {
             bail!("episodes, updates: at least one budget must be above 0");
@@ -271,7 +276,7 @@ impl RunConfig {
     /// Actor `index`'s exploration rate after it took `actions` actions.
     pub fn epsilon(&self, index: u32, actions: u64) -> f32 {
         match &self.apex_epsilon {
-            Some(apex) => apex.for_actor(index, self.actors),
+            Some(apex) => apex.for_actor(index, self.actors + self.run.remote_actors),
             None => self.policy.epsilon(actions),
         }
     }

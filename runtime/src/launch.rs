@@ -4,15 +4,18 @@
 //! is reached, on Ctrl-C, or when the learner or the buffer fails.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, anyhow, bail};
+use bridge::Endpoint;
 use clap::Args;
 use mcaplog::LogLevel;
 use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
 use crate::config::RunConfig;
+use crate::hosts::HostLink;
 use crate::progress::{Display, Summary, Watch, percent};
 use crate::record::LAUNCHER_SUMMARY;
 use crate::role::{RoleId, open_log};
@@ -55,12 +58,26 @@ pub struct TrainArgs {
     /// Where run directories go.
     #[arg(long, default_value = "logs")]
     logs: PathBuf,
+    /// Let actors on other hosts join (`pushgrasp join`) at this endpoint,
+    /// `tcp/<address>:<port>`; they present the secret written to `<run>/run.secret`.
+    #[arg(long)]
+    listen: Option<Endpoint>,
+    /// Actors expected on joined hosts (the config's `run.remote_actors`): Ape-X's exploration
+    /// rates spread over these and the local ones; with it, `--actors 0` is allowed.
+    #[arg(long)]
+    remote_actors: Option<u32>,
 }
 
 pub fn train(args: &TrainArgs) -> Result<()> {
     let (run_id, dir, config) = prepare_run(args)?;
     let signals = Signals::install()?;
     let (wiring, transport) = wiring(args.threads, &run_id, &dir)?;
+    let mut link = match &args.listen {
+        Some(endpoint) => {
+            HostLink::listen_at(endpoint.clone(), &run_id, &dir, &config, transport.clone())?
+        }
+        None => HostLink::default(),
+    };
     let mut status = Inbox::open(transport.as_ref(), Topic::Status)?;
     let mut control = Outbox::open(transport.as_ref(), Topic::Control)?;
     let log = open_log(&dir, "launcher", &config)?;
@@ -84,6 +101,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         &mut status,
         &mut control,
         &signals,
+        &mut link,
     );
     if let Err(e) = &outcome {
         let _ = supervisor.log.log_line(LogLevel::Fatal, &format!("{e:#}"));
@@ -94,6 +112,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         }
         supervisor.kill_all();
     }
+    let hosts = link.close().unwrap_or_else(|e| {
+        eprintln!("closing the link to the joined hosts: {e:#}");
+        Vec::new()
+    });
     // A role that died wrote no report: its last status report's counts stand in.
     let mut summary = Summary {
         run_id,
@@ -110,6 +132,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         actors_reports: actor_reports(&dir)?,
         faults: supervisor.faults.clone(),
         failure: outcome.as_ref().err().map(|e| format!("{e:#}")),
+        hosts,
     };
     for fault in &mut summary.faults {
         fault.lost_messages = summary
@@ -168,6 +191,9 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
     if let Some(updates) = args.updates {
         config.updates = updates;
     }
+    if let Some(remote_actors) = args.remote_actors {
+        config.run.remote_actors = remote_actors;
+    }
     if let Some(init) = &args.init_from {
         // Absolute: the roles read it from the run directory's copy of the config.
         let init = std::fs::canonicalize(init)
@@ -183,18 +209,23 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
 
 /// How the roles meet: threads over channels, or processes over the run's shared memory
 /// (stale services of an earlier run of this id removed first).
-fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Box<dyn Transport>)> {
+/// The transport is shared with the bridge's threads, when the run listens for hosts.
+fn wiring(
+    threads: bool,
+    run_id: &str,
+    dir: &RunDir,
+) -> Result<(Wiring, Arc<dyn Transport + Send + Sync>)> {
     if threads {
         let transport = ChannelTransport::new();
         let wiring = Wiring::Threads {
             transport: transport.clone(),
         };
-        return Ok((wiring, Box::new(transport)));
+        return Ok((wiring, Arc::new(transport)));
     }
     let namespace = shm_namespace(run_id, dir)?;
     wire::ShmTransport::remove_stale(&namespace)?;
     let transport = wire::ShmTransport::new(&namespace, "launcher")?;
-    Ok((Wiring::Processes { namespace }, Box::new(transport)))
+    Ok((Wiring::Processes { namespace }, Arc::new(transport)))
 }
 
 /// The report at `path`, or `missing()` when the role wrote none (it died); a report that
@@ -241,6 +272,7 @@ fn print_summary(summary: &Summary, dir: &RunDir) {
         summary.wall_s,
         dir.path().display()
     );
+    crate::hosts::print_hosts(&summary.hosts);
 }
 
 /// Starts the roles, follows the run until its budget or an interrupt, then stops it in
@@ -251,12 +283,15 @@ fn supervise(
     status: &mut Inbox,
     control: &mut Outbox,
     signals: &Signals,
+    link: &mut HostLink,
 ) -> Result<()> {
     let config = supervisor.config().clone();
     start_roles(supervisor, status, watch, config.actors)?;
+    link.open()?;
     let mut display = Display::new(config.episodes, Instant::now());
     loop {
         watch.read(status, supervisor)?;
+        link.check(supervisor)?;
         if signals.snapshot_asked() {
             control.send(&Message::Control(Control::Snapshot))?;
         }
@@ -272,7 +307,7 @@ fn supervise(
         std::thread::sleep(Duration::from_millis(50));
     }
     display.finish();
-    stop_in_order(supervisor, control)
+    stop_in_order(supervisor, control, link)
 }
 
 /// The buffer first (actors start only once it listens, so no step goes unheard), then the
@@ -303,11 +338,13 @@ fn start_roles(
     Ok(())
 }
 
-/// Actors first (the buffer takes all they sent), then the learner (its checkpoint), then
-/// the buffer (its snapshot). An actor that stopped badly is reported; anything else fails.
-fn stop_in_order(supervisor: &mut Supervisor, control: &mut Outbox) -> Result<()> {
-    let mut problems = Vec::new();
-    for role in [Role::Actor, Role::Learner, Role::Buffer] {
+/// Actors first, local and joined hosts' (the buffer takes all they sent), then the learner
+/// (its checkpoint), then the buffer (its snapshot). An actor that stopped badly is reported;
+/// anything else fails.
+fn stop_in_order(supervisor: &mut Supervisor, control: &mut Outbox, link: &HostLink) -> Result<()> {
+    let mut problems = supervisor.stop(Role::Actor, control)?;
+    link.wait_for_hosts(supervisor);
+    for role in [Role::Learner, Role::Buffer] {
         problems.extend(supervisor.stop(role, control)?);
     }
     let failed: Vec<&String> = problems
@@ -350,7 +387,7 @@ fn newest_run(logs: &Path) -> Result<String> {
 /// The name a run's shared-memory services go under: its id (what a person reading
 /// `/dev/shm` recognises) and a hash of its directory, so that runs of one id in different
 /// log directories (two pipelines' `stage1`) never see each other's messages.
-fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
+pub(crate) fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
     use std::hash::Hasher;
     let dir =
         std::fs::canonicalize(dir.path()).with_context(|| format!("{}", dir.path().display()))?;

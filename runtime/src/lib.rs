@@ -1,11 +1,15 @@
 //! `pushgrasp train`: the distributed runtime. A launcher starts the buffer, the learner and
 //! N actors, as child processes of this binary talking over iceoryx2 shared memory (the
 //! default) or as threads talking over crossbeam channels (`--threads`); the roles' code is
-//! the same in both wirings.
+//! the same in both wirings. With `--listen`, actors on other hosts join the run
+//! (`pushgrasp join`, [`join`]): each host keeps its own shared memory, and one bridge per
+//! host carries what must cross (the `bridge` crate).
 
 pub mod actor;
 pub mod buffer;
 pub mod config;
+pub mod hosts;
+pub mod join;
 pub mod launch;
 pub mod learner;
 pub mod pipeline;
@@ -25,6 +29,7 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 use wire::{Control, Inbox, Message, Role};
 
+pub use join::{JoinArgs, join};
 pub use launch::{TrainArgs, train};
 pub use progress::{Progress, Summary};
 pub use role::{RoleArgs, RoleId, role_process};

@@ -160,6 +160,11 @@ pub struct Summary {
     /// Why the run ended before its budget, when a fault ended it.
     #[serde(default)]
     pub failure: Option<String>,
+    /// The hosts that joined the run (`train --listen`): which actors each ran, what arrived
+    /// from it, what was refused or lost in flight. (Absent from summaries written before:
+    /// none.)
+    #[serde(default)]
+    pub hosts: Vec<bridge::HostReport>,
 }
 
 impl Summary {

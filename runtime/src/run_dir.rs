@@ -25,6 +25,27 @@ impl RunDir {
         &self.path
     }
 
+    /// Where the hosts that joined the run keep their own files (`hosts/`): each host's
+    /// directory is a run directory of its own, written on that host.
+    pub fn hosts(&self) -> PathBuf {
+        self.path.join("hosts")
+    }
+
+    /// The directory of the joined host `host` (`hosts/<host>/`).
+    pub fn host(&self, host: &str) -> RunDir {
+        RunDir::new(self.hosts().join(host))
+    }
+
+    /// The run's secret, which joining hosts present (`run.secret`, its owner's alone).
+    pub fn secret(&self) -> PathBuf {
+        self.path.join("run.secret")
+    }
+
+    /// The places of the hosts that joined (`hosts.json`).
+    pub fn hosts_file(&self) -> PathBuf {
+        self.path.join("hosts.json")
+    }
+
     /// Whether a run was started here (its resolved config is written first).
     pub fn holds_run(&self) -> bool {
         self.config().exists()

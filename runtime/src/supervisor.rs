@@ -87,8 +87,13 @@ impl Supervisor {
     }
 
     fn fault(&mut self, role: RoleId, cause: &str, restarted: bool) {
+        self.record_fault(role.name(), cause, restarted);
+    }
+
+    /// A fault of something the supervisor does not start itself (a joined host).
+    pub fn record_fault(&mut self, role: String, cause: &str, restarted: bool) {
         self.faults.push(Fault {
-            role: role.name(),
+            role,
             at_s: self.started.elapsed().as_secs_f64(),
             cause: cause.into(),
             restarted,

@@ -40,7 +40,7 @@ pub fn run(
     let mut ports = Ports::open(transport)?;
     // The first report says the buffer listens: the launcher starts actors only then.
     ports.status.send(&Message::Status(role.status()))?;
-    let mut inflow = Inflow::new(config.actors);
+    let mut inflow = Inflow::new(config.actors + config.run.remote_actors);
     let mut last_status = Instant::now();
     loop {
         let Orders {

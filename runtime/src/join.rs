@@ -1,0 +1,277 @@
+//! `pushgrasp join`: a host's actors joining a run that listens on another machine
+//! (`train --listen`). The host gets its actors' indices and the run's config from the
+//! central host, runs its actors as processes over its own shared memory (supervised as the
+//! launcher supervises them: a crashed or hung actor starts again), and one bridge that
+//! carries their steps up and the weights down. It stops when the run stops its actors, on
+//! Ctrl-C, or when the central host has been gone too long.
+//!
+//! Its files are a run directory of their own, `<logs>/<run id>/hosts/<host>/`: gathered
+//! into the central run's directory (or written there, on a shared filesystem), `inspect`
+//! reads them with the run's.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use bridge::host::UpReport;
+use bridge::{Endpoint, HostBridge, JoinRequest, Keys, RunSecret};
+use clap::Args;
+use serde::Serialize;
+use wire::{Inbox, Outbox, Role, Topic, Transport};
+
+use crate::actor::ActorId;
+use crate::config::RunConfig;
+use crate::launch::shm_namespace;
+use crate::progress::Watch;
+use crate::role::{RoleId, open_log};
+use crate::run_dir::RunDir;
+use crate::signals::Signals;
+use crate::supervisor::{Supervisor, Wiring};
+use crate::write_json;
+
+#[derive(Args)]
+pub struct JoinArgs {
+    /// Where the run listens: the endpoint given to its `train --listen`.
+    pub endpoint: Endpoint,
+    /// The run's id.
+    #[arg(long)]
+    pub run_id: String,
+    /// The run's secret (`<run>/run.secret` on the central host, copied here or on a shared
+    /// filesystem; readable by its owner alone).
+    #[arg(long)]
+    pub secret_file: PathBuf,
+    /// Actor processes on this host.
+    #[arg(long)]
+    pub actors: u32,
+    /// Where this host's run directory goes (`<logs>/<run id>/hosts/<host>/`).
+    #[arg(long, default_value = "logs")]
+    pub logs: PathBuf,
+    /// This host's name in the run (default: the machine's); the same name joining again
+    /// keeps its actor indices.
+    #[arg(long)]
+    pub host_name: Option<String>,
+    /// Seconds the central host may be gone before this host stops its actors and exits.
+    #[arg(long, default_value_t = 60.0)]
+    pub give_up_after_s: f64,
+}
+
+/// What a joined host did (`reports/host.json` in its directory).
+#[derive(Debug, Serialize)]
+pub struct HostSummary {
+    pub run_id: String,
+    pub host: String,
+    pub first_actor: u32,
+    pub actors: u32,
+    pub incarnation: u32,
+    /// Steps and episode ends sent to the central host.
+    pub messages_sent: u64,
+    pub parcels_sent: u64,
+    /// Bytes before and after compression.
+    pub raw_bytes: u64,
+    pub sent_bytes: u64,
+    /// Messages thrown away because the central host was gone for good.
+    pub abandoned: u64,
+    pub actor_restarts: u32,
+    /// Why it stopped.
+    pub ended: String,
+}
+
+/// Why the host stops.
+enum End {
+    /// The run stopped its actors.
+    Ordered,
+    Interrupted,
+    CentralGone(Duration),
+}
+
+pub fn join(args: &JoinArgs) -> Result<()> {
+    let secret = RunSecret::read(&args.secret_file)?;
+    if secret.run_id != args.run_id {
+        bail!(
+            "{} holds the secret of run {:?}, not {:?}",
+            args.secret_file.display(),
+            secret.run_id,
+            args.run_id
+        );
+    }
+    if args.actors == 0 {
+        bail!("--actors: a joined host runs at least 1 actor");
+    }
+    let host = match &args.host_name {
+        Some(name) => name.clone(),
+        None => machine_name()?,
+    };
+    let session = bridge::session::connect(&args.endpoint, &args.run_id, &secret)?;
+    let keys = Keys::new(&args.run_id);
+    let request = JoinRequest {
+        run_id: args.run_id.clone(),
+        host: host.clone(),
+        actors: args.actors,
+    };
+    let placement = bridge::host::join(&session, &keys, &request)?;
+    let config = RunConfig::parse(&placement.config, "the run's config from the central host")?;
+
+    let dir = RunDir::in_logs(&args.logs, &args.run_id).host(&host);
+    std::fs::create_dir_all(dir.reports())
+        .with_context(|| format!("creating {}", dir.path().display()))?;
+    std::fs::write(dir.config(), &placement.config)?;
+    // This host's own shared memory: named after the run and this directory, as a run's is.
+    let namespace = shm_namespace(&args.run_id, &dir)?;
+    wire::ShmTransport::remove_stale(&namespace)?;
+    let transport: Arc<dyn Transport + Send + Sync> =
+        Arc::new(wire::ShmTransport::new(&namespace, "bridge")?);
+    let bridge = HostBridge::start(session, keys, &host, transport.clone())?;
+    let signals = Signals::install()?;
+    let mut status = Inbox::open(transport.as_ref(), Topic::Status)?;
+    let mut control = Outbox::open(transport.as_ref(), Topic::Control)?;
+    let log = open_log(&dir, "host", &config)?;
+    let mut supervisor = Supervisor::new(
+        Wiring::Processes {
+            namespace: namespace.clone(),
+        },
+        config,
+        dir.clone(),
+        false,
+        log,
+    );
+    let last = placement.first_actor + args.actors;
+    println!(
+        "joined run {} at {} as host {host}: actors {}..{last}, logs in {}",
+        args.run_id,
+        args.endpoint,
+        placement.first_actor,
+        dir.path().display()
+    );
+    for index in placement.first_actor..last {
+        supervisor.start(RoleId::Actor(ActorId {
+            index,
+            incarnation: placement.incarnation,
+        }))?;
+    }
+    let give_up = Duration::from_secs_f64(args.give_up_after_s.max(0.0));
+    let mut watch = Watch::default();
+    let outcome = follow(
+        &mut supervisor,
+        &mut watch,
+        &mut status,
+        &bridge,
+        &signals,
+        give_up,
+    );
+    let abandon = !matches!(outcome, Ok(End::Ordered | End::Interrupted))
+        || bridge.central_gone_for() > Duration::ZERO;
+    if abandon {
+        // Nothing more can be delivered: the actors' queues drain so that they can stop.
+        bridge.abandon();
+    }
+    let problems = supervisor.stop(Role::Actor, &mut control)?;
+    for problem in &problems {
+        eprintln!("while stopping: {problem}");
+    }
+    let sent = bridge.finish(abandon)?;
+    let restarts = supervisor.restarts();
+    supervisor.log.finish()?;
+    let ended = match &outcome {
+        Ok(End::Ordered) => "the run stopped its actors".to_string(),
+        Ok(End::Interrupted) => "interrupted".to_string(),
+        Ok(End::CentralGone(gone)) => {
+            format!("the central host was gone for {:.0} s", gone.as_secs_f64())
+        }
+        Err(e) => format!("{e:#}"),
+    };
+    let summary = summary(
+        &args.run_id,
+        &host,
+        &placement,
+        args.actors,
+        &sent,
+        restarts,
+        &ended,
+    );
+    write_json(&dir.report("host"), &summary)?;
+    println!(
+        "host {host} stopped ({ended}): {} steps and episode ends sent in {} parcels ({:.1}x compressed), {} thrown away",
+        sent.messages,
+        sent.parcels,
+        sent.raw_bytes as f64 / sent.sent_bytes.max(1) as f64,
+        sent.abandoned
+    );
+    drop(status);
+    drop(control);
+    drop(transport);
+    wire::ShmTransport::remove_stale(&namespace)?;
+    match outcome? {
+        End::CentralGone(_) => bail!("host {host}: {ended}; its actors were stopped"),
+        End::Ordered | End::Interrupted => Ok(()),
+    }
+}
+
+/// Supervises the actors until the run stops them, Ctrl-C, or the central host is gone.
+fn follow(
+    supervisor: &mut Supervisor,
+    watch: &mut Watch,
+    status: &mut Inbox,
+    bridge: &HostBridge,
+    signals: &Signals,
+    give_up: Duration,
+) -> Result<End> {
+    let mut last_news = Instant::now();
+    loop {
+        watch.read(status, supervisor)?;
+        if bridge.stop_ordered() {
+            return Ok(End::Ordered);
+        }
+        if signals.interrupted() {
+            return Ok(End::Interrupted);
+        }
+        let gone = bridge.central_gone_for();
+        if gone > give_up {
+            return Ok(End::CentralGone(gone));
+        }
+        if bridge.failed() {
+            bail!("the bridge to the central host stopped");
+        }
+        if gone > Duration::ZERO && last_news.elapsed() > Duration::from_secs(5) {
+            eprintln!(
+                "the central host has been gone for {:.0} s (giving up after {:.0} s)",
+                gone.as_secs_f64(),
+                give_up.as_secs_f64()
+            );
+            last_news = Instant::now();
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn summary(
+    run_id: &str,
+    host: &str,
+    placement: &bridge::Placement,
+    actors: u32,
+    sent: &UpReport,
+    actor_restarts: u32,
+    ended: &str,
+) -> HostSummary {
+    HostSummary {
+        run_id: run_id.into(),
+        host: host.into(),
+        first_actor: placement.first_actor,
+        actors,
+        incarnation: placement.incarnation,
+        messages_sent: sent.messages,
+        parcels_sent: sent.parcels,
+        raw_bytes: sent.raw_bytes,
+        sent_bytes: sent.sent_bytes,
+        abandoned: sent.abandoned,
+        actor_restarts,
+        ended: ended.into(),
+    }
+}
+
+/// The machine's name, as the kernel has it.
+fn machine_name() -> Result<String> {
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .context("reading this machine's name (or give --host-name)")?;
+    Ok(name.trim().to_owned())
+}

@@ -1,0 +1,525 @@
+//! One run across hosts, simulated on one machine: the central host (`train --listen`) and
+//! joined hosts (`pushgrasp join`), each with its own iceoryx2 prefix, so no shared memory
+//! can carry a step between them; and, where this machine lets us (root, `ip`), each joined
+//! host in its own network namespace, joined to the central one by a veth pair, so the bytes
+//! cross an interface. Otherwise loopback addresses; the test says which it used.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+const CONFIG: &str = "configs/stage1.toml";
+
+/// Tells this process's simulated machines apart from another test process's.
+static NEXT_NET: AtomicU32 = AtomicU32::new(0);
+
+/// How a joined host reaches the central one.
+enum Place {
+    /// Its own network namespace: `ip netns exec <name>`, the central host at `address`.
+    Namespace {
+        name: String,
+        address: String,
+    },
+    Loopback,
+}
+
+/// The simulated machines of one test, removed when it ends.
+struct Machines {
+    tag: String,
+    hosts: Vec<Place>,
+    logs: tempfile::TempDir,
+    port: u16,
+}
+
+fn ip(args: &[&str]) -> bool {
+    Command::new("ip")
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+impl Machines {
+    fn new(hosts: usize) -> Self {
+        let net = NEXT_NET.fetch_add(1, Ordering::Relaxed);
+        let tag = format!("{:x}{net}", std::process::id() % 0xffff);
+        let port = std::net::TcpListener::bind("0.0.0.0:0")
+            .and_then(|l| l.local_addr())
+            .expect("a free port")
+            .port();
+        let mut machines = Self {
+            tag,
+            hosts: Vec::new(),
+            logs: tempfile::tempdir().expect("a temporary directory"),
+            port,
+        };
+        for host in 0..hosts {
+            let place = machines.namespace(net, host).unwrap_or(Place::Loopback);
+            machines.hosts.push(place);
+        }
+        let used = match machines.hosts.first() {
+            Some(Place::Namespace { .. }) => "a network namespace per joined host, over veth",
+            _ => "loopback addresses (no network namespaces here)",
+        };
+        eprintln!("simulated hosts: {used}");
+        machines
+    }
+
+    /// A namespace joined to this one by a veth pair, 10.<a>.<b>.1 here, .2 there.
+    fn namespace(&self, net: u32, host: usize) -> Option<Place> {
+        let name = format!("pg{}h{host}", self.tag);
+        let (outside, inside) = (
+            format!("pgo{}{host}", self.tag),
+            format!("pgi{}{host}", self.tag),
+        );
+        let subnet = format!(
+            "10.{}.{}",
+            200 + (std::process::id() % 50),
+            (net * 8 + host as u32) % 250
+        );
+        let ok = ip(&["netns", "add", &name])
+            && ip(&[
+                "link", "add", &outside, "type", "veth", "peer", "name", &inside,
+            ])
+            && ip(&["link", "set", &inside, "netns", &name])
+            && ip(&["addr", "add", &format!("{subnet}.1/24"), "dev", &outside])
+            && ip(&["link", "set", &outside, "up"])
+            && ip(&[
+                "netns",
+                "exec",
+                &name,
+                "ip",
+                "addr",
+                "add",
+                &format!("{subnet}.2/24"),
+                "dev",
+                &inside,
+            ])
+            && ip(&["netns", "exec", &name, "ip", "link", "set", &inside, "up"])
+            && ip(&["netns", "exec", &name, "ip", "link", "set", "lo", "up"]);
+        if !ok {
+            ip(&["netns", "del", &name]);
+            ip(&["link", "del", &outside]);
+            return None;
+        }
+        Some(Place::Namespace {
+            name,
+            address: format!("{subnet}.1"),
+        })
+    }
+
+    fn logs(&self) -> &Path {
+        self.logs.path()
+    }
+
+    fn run_dir(&self, run: &str) -> PathBuf {
+        self.logs().join(run)
+    }
+
+    /// The iceoryx2 prefix of the central host (`None`) or a joined one.
+    fn prefix(&self, host: Option<usize>) -> String {
+        match host {
+            None => format!("pg{}c_", self.tag),
+            Some(h) => format!("pg{}h{h}_", self.tag),
+        }
+    }
+
+    /// `pushgrasp train` on the central host, listening on every interface.
+    fn central(&self, run: &str, args: &[&str]) -> Child {
+        let listen = format!("tcp/0.0.0.0:{}", self.port);
+        Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+            .args([
+                "train", "--config", CONFIG, "--run-id", run, "--listen", &listen,
+            ])
+            .arg("--logs")
+            .arg(self.logs())
+            .args(args)
+            .env(wire::SHM_PREFIX_VAR, self.prefix(None))
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("pushgrasp train starts")
+    }
+
+    /// `pushgrasp join` on joined host `host`, as `name`, with the run's secret file or another.
+    fn join(&self, host: usize, run: &str, name: &str, secret: &Path) -> Command {
+        let (mut command, address) = match &self.hosts[host] {
+            Place::Namespace { name, address } => {
+                let mut command = Command::new("ip");
+                command.args(["netns", "exec", name]);
+                command.arg(env!("CARGO_BIN_EXE_pushgrasp"));
+                (command, address.clone())
+            }
+            Place::Loopback => (
+                Command::new(env!("CARGO_BIN_EXE_pushgrasp")),
+                "127.0.0.1".to_string(),
+            ),
+        };
+        command
+            .args(["join", &format!("tcp/{address}:{}", self.port)])
+            .args(["--run-id", run, "--actors", "1", "--host-name", name])
+            .args(["--give-up-after-s", "5"])
+            .arg("--secret-file")
+            .arg(secret)
+            .arg("--logs")
+            .arg(self.logs())
+            .env(wire::SHM_PREFIX_VAR, self.prefix(Some(host)))
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        command
+    }
+
+    /// Waits for the run's secret: the central host listens once it is written and the
+    /// buffer is up.
+    fn secret(&self, run: &str) -> PathBuf {
+        let secret = self.run_dir(run).join("run.secret");
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while !secret.exists() {
+            assert!(
+                Instant::now() < deadline,
+                "the central host never wrote its secret"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        // The secret comes before the buffer; the link opens once the buffer listens.
+        std::thread::sleep(Duration::from_secs(2));
+        secret
+    }
+}
+
+impl Drop for Machines {
+    fn drop(&mut self) {
+        for place in &self.hosts {
+            if let Place::Namespace { name, .. } = place {
+                ip(&["netns", "del", name]);
+            }
+        }
+        // What killed processes of these hosts could not remove, and iceoryx2's own files.
+        for host in std::iter::once(None).chain((0..self.hosts.len()).map(Some)) {
+            let prefix = self.prefix(host);
+            if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+                for entry in entries.flatten() {
+                    if entry.file_name().to_string_lossy().starts_with(&prefix) {
+                        let _ = std::fs::remove_file(entry.path());
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn wait_output(child: Child, timeout: Duration, what: &str) -> Output {
+    let pid = child.id();
+    let (done, waiting) = std::sync::mpsc::channel();
+    std::thread::spawn(move || done.send(child.wait_with_output()));
+    match waiting.recv_timeout(timeout) {
+        Ok(output) => output.expect("waitable"),
+        Err(_) => {
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            panic!("{what} did not finish within {timeout:?}");
+        }
+    }
+}
+
+fn succeeded(output: &Output, what: &str) -> String {
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr),
+    );
+    assert!(
+        output.status.success(),
+        "{what} failed ({}):\n{stdout}\n{stderr}",
+        output.status
+    );
+    stdout.into_owned()
+}
+
+fn json(path: &Path) -> Value {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn u(value: &Value) -> u64 {
+    value
+        .as_u64()
+        .unwrap_or_else(|| panic!("{value} is not a count"))
+}
+
+fn host<'s>(summary: &'s Value, name: &str) -> &'s Value {
+    summary["hosts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|h| h["host"] == name)
+        .unwrap_or_else(|| panic!("no host {name} in {}", summary["hosts"]))
+}
+
+/// The reports of a joined host's actors.
+fn actor_reports(dir: &Path) -> Vec<Value> {
+    std::fs::read_dir(dir.join("reports"))
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("actor-"))
+        .map(|e| json(&e.path()))
+        .collect()
+}
+
+fn alive(pid: u64) -> bool {
+    Path::new(&format!("/proc/{pid}")).exists()
+}
+
+#[test]
+fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused() {
+    let machines = Machines::new(2);
+    let run = "across";
+    let central = machines.central(
+        run,
+        &["--actors", "0", "--remote-actors", "2", "--episodes", "60"],
+    );
+    let secret = machines.secret(run);
+
+    // A host with another secret is refused before anything of it reaches the run.
+    let forged = machines.logs().join("forged.secret");
+    let text = std::fs::read_to_string(&secret).unwrap();
+    let (id, password) = text.trim().split_once(':').unwrap();
+    let forged_password: String = password.chars().rev().collect();
+    std::fs::write(&forged, format!("{id}:{forged_password}\n")).unwrap();
+    std::fs::set_permissions(&forged, std::os::unix::fs::PermissionsExt::from_mode(0o600)).unwrap();
+    let refused = machines.join(0, run, "forger", &forged).output().unwrap();
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        err.contains("cannot join run") && err.contains("secret"),
+        "{err}"
+    );
+
+    let hosts: Vec<Child> = (0..2)
+        .map(|h| {
+            machines
+                .join(h, run, &format!("h{h}"), &secret)
+                .spawn()
+                .expect("pushgrasp join starts")
+        })
+        .collect();
+    succeeded(
+        &wait_output(central, Duration::from_secs(300), "the central run"),
+        "the central run",
+    );
+    let mut sent = 0;
+    for (h, child) in hosts.into_iter().enumerate() {
+        let out = succeeded(
+            &wait_output(child, Duration::from_secs(60), "a joined host"),
+            "a joined host",
+        );
+        assert!(out.contains("the run stopped its actors"), "{out}");
+        let dir = machines.run_dir(run).join("hosts").join(format!("h{h}"));
+        let report = json(&dir.join("reports/host.json"));
+        let summary = json(&machines.run_dir(run).join("summary.json"));
+        let counted = host(&summary, &format!("h{h}"));
+        // Every step and episode end the host sent is in, none refused, none lost.
+        assert_eq!(
+            u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
+            u(&report["messages_sent"])
+        );
+        assert_eq!(u(&counted["rejected"]), 0);
+        assert_eq!(u(&counted["lost_in_flight"]), 0);
+        assert!(
+            u(&report["raw_bytes"]) > 5 * u(&report["sent_bytes"]),
+            "{report}"
+        );
+        sent += u(&counted["steps_received"]);
+        // Its actors acted with weights the learner published after its start.
+        let actors = actor_reports(&dir);
+        assert_eq!(actors.len(), 1);
+        assert!(u(&actors[0]["weights_version"]) > 0, "{actors:?}");
+        let first = u(&counted["first_actor"]);
+        assert!(dir.join(format!("actor-{first}-0.mcap")).exists());
+    }
+    let summary = json(&machines.run_dir(run).join("summary.json"));
+    assert_eq!(u(&summary["buffer"]["steps_received"]), sent);
+    let streams = summary["buffer"]["streams"].as_array().unwrap();
+    assert_eq!(streams.len(), 2);
+    assert!(streams.iter().all(|s| u(&s["missing"]) == 0), "{streams:?}");
+    assert!(
+        summary["hosts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|h| h["host"] != "forger")
+    );
+
+    // `inspect` reads the hosts' logs with the run's.
+    let inspect = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .args(["inspect", "--json"])
+        .arg(machines.run_dir(run))
+        .output()
+        .unwrap();
+    let table: Value = serde_json::from_str(&succeeded(&inspect, "inspect")).unwrap();
+    let actors_logged = table["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["file"].as_str().unwrap().contains("actor-"))
+        .count();
+    assert_eq!(actors_logged, 2, "{}", table["files"]);
+}
+
+#[test]
+fn a_killed_host_leaves_the_run_going_and_a_late_joiner_gets_weights() {
+    let machines = Machines::new(2);
+    let run = "faults";
+    let central = machines.central(
+        run,
+        &["--actors", "0", "--remote-actors", "2", "--episodes", "80"],
+    );
+    let secret = machines.secret(run);
+    let doomed = machines.join(0, run, "doomed", &secret).spawn().unwrap();
+    // Let it act a while, then kill it and everything it started.
+    let actor = first_actor_pid(&machines, run, "doomed");
+    std::thread::sleep(Duration::from_secs(4));
+    // `ip netns exec` runs pushgrasp in its own process: kill the join by its name.
+    let _ = Command::new("pkill")
+        .args(["-9", "-f", "--", "--host-name doomed"])
+        .status();
+    let _ = Command::new("kill")
+        .args(["-9", &actor.to_string()])
+        .status();
+    let doomed = wait_output(doomed, Duration::from_secs(30), "the killed host");
+    assert!(!doomed.status.success());
+
+    let late = machines.join(1, run, "late", &secret).spawn().unwrap();
+    let central = wait_output(central, Duration::from_secs(300), "the central run");
+    let out = succeeded(&central, "the central run");
+    let out = format!("{out}\n{}", String::from_utf8_lossy(&central.stderr));
+    succeeded(
+        &wait_output(late, Duration::from_secs(60), "the late host"),
+        "the late host",
+    );
+    let summary = json(&machines.run_dir(run).join("summary.json"));
+    assert!(u(&summary["buffer"]["episodes"]) >= 80, "{out}");
+    let lost = host(&summary, "doomed");
+    assert!(u(&lost["lost_links"]) >= 1, "{lost}");
+    assert!(
+        summary["faults"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|f| f["role"] == "host doomed"),
+        "{}\n{out}",
+        summary["faults"]
+    );
+    // The late joiner's actor got weights and acted; the killed host left no process.
+    let late_dir = machines.run_dir(run).join("hosts/late");
+    let actors = actor_reports(&late_dir);
+    assert!(
+        u(&actors[0]["episodes"]) > 0 && u(&actors[0]["weights_version"]) > 0,
+        "{actors:?}"
+    );
+    assert!(!alive(actor));
+}
+
+/// The pid of the first process a joined host started (its actor), once it has started it.
+fn first_actor_pid(machines: &Machines, run: &str, host: &str) -> u64 {
+    let processes = machines
+        .run_dir(run)
+        .join(format!("hosts/{host}/processes.json"));
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        if let Ok(bytes) = std::fs::read(&processes)
+            && let Ok(Value::Array(entries)) = serde_json::from_slice::<Value>(&bytes)
+            && let Some(entry) = entries.first()
+        {
+            return u(&entry["pid"]);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "host {host} never started its actor"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn hosts_stop_when_the_central_host_dies_and_join_its_resumed_run() {
+    let machines = Machines::new(1);
+    let run = "phoenix";
+    let mut central = machines.central(
+        run,
+        &[
+            "--actors",
+            "0",
+            "--remote-actors",
+            "1",
+            "--episodes",
+            "100000",
+        ],
+    );
+    let secret = machines.secret(run);
+    let joined = machines.join(0, run, "h0", &secret).spawn().unwrap();
+    let actor = first_actor_pid(&machines, run, "h0");
+    std::thread::sleep(Duration::from_secs(3));
+    let roles: Vec<u64> = match json(&machines.run_dir(run).join("processes.json")) {
+        Value::Array(entries) => entries.iter().map(|e| u(&e["pid"])).collect(),
+        other => panic!("{other}"),
+    };
+    central.kill().unwrap();
+    central.wait().unwrap();
+
+    // The host gives up after its 5 s, stops its actor and leaves no shared memory but
+    // iceoryx2's own management file.
+    let orphan = wait_output(joined, Duration::from_secs(90), "the orphaned host");
+    let err = String::from_utf8_lossy(&orphan.stderr);
+    assert!(
+        !orphan.status.success() && err.contains("central host was gone"),
+        "{err}"
+    );
+    assert!(!alive(actor));
+    let prefix = machines.prefix(Some(0));
+    let left: Vec<String> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(&prefix) && !n.ends_with("global_mgmt"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+
+    // The central roles stop by themselves; the resumed run takes the host back.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while roles.iter().any(|&pid| alive(pid)) {
+        assert!(
+            Instant::now() < deadline,
+            "the central roles outlived their launcher"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let done = u(&json(&machines.run_dir(run).join("buffer-counters.json"))["report"]["episodes"]);
+    let budget = (done + 20).to_string();
+    let central = machines.central(run, &["--resume", "--episodes", &budget]);
+    let secret = machines.secret(run);
+    let rejoined = machines.join(0, run, "h0", &secret).spawn().unwrap();
+    succeeded(
+        &wait_output(central, Duration::from_secs(300), "the resumed run"),
+        "the resumed run",
+    );
+    succeeded(
+        &wait_output(rejoined, Duration::from_secs(60), "the host"),
+        "the host",
+    );
+    let summary = json(&machines.run_dir(run).join("summary.json"));
+    let again = host(&summary, "h0");
+    assert_eq!(u(&again["joins"]), 2, "{again}");
+    assert!(u(&again["steps_received"]) > 0, "{again}");
+    let first = u(&again["first_actor"]);
+    assert!(
+        machines
+            .run_dir(run)
+            .join(format!("hosts/h0/actor-{first}-100.mcap"))
+            .exists()
+    );
+}
