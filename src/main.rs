@@ -43,6 +43,8 @@ enum Command {
     Train(runtime::TrainArgs),
     /// Run actors on this host for a run that listens on another (`train --listen`).
     Join(runtime::JoinArgs),
+    /// One run across the nodes of a Slurm job: writes (and with --submit submits) its script.
+    Cluster(sweep::runner::cluster::ClusterArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
     Pipeline(runtime::pipeline::PipelineArgs),
     /// One role of a training run (started by `train`, not by hand).
@@ -70,6 +72,7 @@ fn main() -> Result<()> {
         Command::Episode(args) => scene_tools::episode(&args),
         Command::Train(args) => runtime::train(&args),
         Command::Join(args) => runtime::join(&args),
+        Command::Cluster(args) => sweep::runner::cluster::run(&args),
         Command::Pipeline(args) => runtime::pipeline::run(&args),
         Command::Role(args) => runtime::role_process(&args),
         Command::Eval(args) => eval::run(&args),

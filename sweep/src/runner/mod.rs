@@ -7,6 +7,7 @@
 //! This file holds the command line and the start of a sweep; `plan` checks the runs,
 //! `dir` owns the sweep directory, `local` and `submit` (Slurm) are the two backends.
 
+pub mod cluster;
 mod dir;
 mod local;
 mod plan;

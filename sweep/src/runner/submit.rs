@@ -65,18 +65,9 @@ pub fn submit(
         );
         return Ok(());
     }
-    let output = query("sbatch", [OsStr::new("--parsable"), path.as_os_str()]).map_err(|why| {
-        anyhow!(
-            "cannot submit {}: {why}; --no-submit writes the script only, --backend local runs \
-             the sweep here",
-            path.display()
-        )
+    let job_id = sbatch(&path).map_err(|e| {
+        anyhow!("{e:#}; --no-submit writes the script only, --backend local runs the sweep here")
     })?;
-    // `--parsable` prints `<job id>` or `<job id>;<cluster>`.
-    let job_id = output.trim().split(';').next().unwrap_or("").to_string();
-    if job_id.is_empty() || !job_id.bytes().all(|b| b.is_ascii_digit()) {
-        bail!("sbatch --parsable printed {output:?}, not a job id");
-    }
     // A failure of an earlier local start no longer describes a run that runs again.
     for entry in &mut state.runs {
         if runs.iter().any(|run| run.id == entry.id) {
@@ -188,6 +179,18 @@ fn describe(state: &JobState) -> String {
         JobState::Cancelled => "cancelled".into(),
         JobState::Other(state) => state.to_lowercase(),
     }
+}
+
+/// Submits the batch script at `path`; its job id.
+pub(crate) fn sbatch(path: &std::path::Path) -> Result<String> {
+    let output = query("sbatch", [OsStr::new("--parsable"), path.as_os_str()])
+        .map_err(|why| anyhow!("cannot submit {}: {why}", path.display()))?;
+    // `--parsable` prints `<job id>` or `<job id>;<cluster>`.
+    let job_id = output.trim().split(';').next().unwrap_or("").to_string();
+    if job_id.is_empty() || !job_id.bytes().all(|b| b.is_ascii_digit()) {
+        bail!("sbatch --parsable printed {output:?}, not a job id");
+    }
+    Ok(job_id)
 }
 
 /// Runs a Slurm command; its stdout, or why not.
