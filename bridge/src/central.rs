@@ -211,7 +211,7 @@ fn answer_joins(
 }
 
 /// Hosts' steps into the local steps topic, their actors' reports into the local status
-/// topic, which hosts come and go, until stopped. A host's leaving is judged only once the
+/// topic, which hosts come and go, until stopped. A host's leaving is judged only when the
 /// steps queue is empty: its last parcel (done or not) arrived before its session ended.
 fn carry_up(
     session: &Session,
@@ -245,28 +245,30 @@ fn carry_up(
                 )?;
             }
         }
-        let mut took = false;
-        while let Some(sample) = steps_in
+        // One parcel a round, so that reports are read between parcels while hosts keep the
+        // queue full (the buffer sets the pace).
+        let parcel = steps_in
             .try_recv()
-            .map_err(zenoh_error("receiving steps"))?
+            .map_err(zenoh_error("receiving steps"))?;
+        let took = parcel.is_some();
+        if let Some(sample) = parcel
+            && let Some(host) = keys.host_of(Stream::Steps, sample.key_expr().as_str())
+            && let Some(number) =
+                take_parcel(hosts, host, &sample.payload().to_bytes(), &mut *steps_out)?
         {
-            took = true;
-            if let Some(host) = keys.host_of(Stream::Steps, sample.key_expr().as_str()) {
-                let number =
-                    take_parcel(hosts, host, &sample.payload().to_bytes(), &mut *steps_out)?;
-                if let Some(number) = number {
-                    link::put(
-                        session,
-                        Stream::Taken,
-                        keys.stream(Stream::Taken, host),
-                        number.to_le_bytes().to_vec(),
-                    )?;
-                }
-            }
+            link::put(
+                session,
+                Stream::Taken,
+                keys.stream(Stream::Taken, host),
+                number.to_le_bytes().to_vec(),
+            )?;
         }
-        while let Some(sample) = presence
-            .try_recv()
+        // Comings and goings only with no parcel waiting: a host's last parcels are in.
+        while let Some(sample) = (!took)
+            .then(|| presence.try_recv())
+            .transpose()
             .map_err(zenoh_error("watching the hosts"))?
+            .flatten()
         {
             let Some(name) = sample.key_expr().as_str().rsplit('/').next() else {
                 continue;
