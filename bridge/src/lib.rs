@@ -10,6 +10,7 @@ pub mod host;
 pub mod join;
 pub mod link;
 pub mod parcel;
+pub mod refusals;
 pub mod secret;
 pub mod session;
 
