@@ -2,7 +2,8 @@
 //! joined hosts (`pushgrasp join`), each with its own iceoryx2 prefix, so no shared memory
 //! can carry a step between them; and, where this machine lets us (root, `ip`), each joined
 //! host in its own network namespace, joined to the central one by a veth pair, so the bytes
-//! cross an interface. Otherwise loopback addresses; the test says which it used.
+//! cross an interface. Otherwise loopback addresses; the test says which it used. And one run
+//! across the nodes of a Slurm job, where a two-node Slurm can be started here.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -10,6 +11,9 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
+
+#[path = "slurm/daemons.rs"]
+mod daemons;
 
 const CONFIG: &str = "configs/stage1.toml";
 
@@ -307,9 +311,13 @@ fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused()
                 .expect("pushgrasp join starts")
         })
         .collect();
-    succeeded(
-        &wait_output(central, Duration::from_secs(300), "the central run"),
-        "the central run",
+    let central = wait_output(central, Duration::from_secs(300), "the central run");
+    succeeded(&central, "the central run");
+    // Both sides say why.
+    let central_err = String::from_utf8_lossy(&central.stderr);
+    assert!(
+        central_err.contains("refused a host that presented a wrong secret"),
+        "{central_err}"
     );
     let mut sent = 0;
     for (h, child) in hosts.into_iter().enumerate() {
@@ -521,5 +529,66 @@ fn hosts_stop_when_the_central_host_dies_and_join_its_resumed_run() {
             .run_dir(run)
             .join(format!("hosts/h0/actor-{first}-100.mcap"))
             .exists()
+    );
+}
+
+#[test]
+fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
+    let Some(slurm) = daemons::Slurm::start(2) else {
+        return;
+    };
+    let logs = tempfile::tempdir().unwrap();
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut config: toml::Table =
+        toml::from_str(&std::fs::read_to_string(repo.join(CONFIG)).unwrap()).unwrap();
+    config.insert("episodes".into(), toml::Value::Integer(30));
+    let short = logs.path().join("short.toml");
+    std::fs::write(&short, toml::to_string(&config).unwrap()).unwrap();
+    let port = std::net::TcpListener::bind("0.0.0.0:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port()
+        .to_string();
+    let submitted = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .args(["cluster", "--run-id", "spread", "--nodes", "2"])
+        .args(["--actors-per-node", "1", "--port", &port, "--submit"])
+        .arg("--config")
+        .arg(&short)
+        .arg("--logs")
+        .arg(logs.path())
+        .env("SLURM_CONF", &slurm.conf)
+        .current_dir(repo)
+        .output()
+        .unwrap();
+    assert!(succeeded(&submitted, "pushgrasp cluster").contains("submitted job"));
+
+    // The job ends once the run and its joined host have stopped.
+    let queue = || {
+        let squeue = Command::new("squeue")
+            .args(["-h", "-o", "%i"])
+            .env("SLURM_CONF", &slurm.conf)
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&squeue.stdout).trim().to_string()
+    };
+    let deadline = Instant::now() + Duration::from_secs(300);
+    while !queue().is_empty() {
+        assert!(
+            Instant::now() < deadline,
+            "the job did not end within 300 s"
+        );
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let summary = json(&logs.path().join("spread/summary.json"));
+    assert!(u(&summary["buffer"]["episodes"]) >= 30);
+    let joined = host(&summary, "pg2");
+    assert!(
+        u(&joined["steps_received"]) > 0 && joined["done"] == true,
+        "{joined}"
+    );
+    let report = json(&logs.path().join("spread/hosts/pg2/reports/host.json"));
+    assert_eq!(
+        u(&joined["steps_received"]) + u(&joined["episode_ends_received"]),
+        u(&report["messages_sent"])
     );
 }

@@ -5,7 +5,6 @@
 //! single-node Slurm where one can be started here).
 
 use std::borrow::BorrowMut;
-use std::net::TcpListener;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -13,6 +12,10 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::Value;
 use tempfile::TempDir;
+
+#[path = "slurm/daemons.rs"]
+mod daemons;
+use daemons::Slurm;
 
 /// Each run's episode budget.
 const EPISODES: u64 = 12;
@@ -656,67 +659,9 @@ fn the_slurm_script_names_every_run_and_runs_one() {
     assert!(!sweep_dir.join("script-0").exists() && !sweep_dir.join("script-2").exists());
 }
 
-/// A private single-node Slurm (tests/slurm/start.sh), stopped when dropped.
-struct Slurm {
-    state: TempDir,
-    conf: String,
-}
-
-impl Slurm {
-    /// Starts one, or says why it cannot and returns `None`.
-    fn start() -> Option<Slurm> {
-        let state = tempfile::tempdir().unwrap();
-        let port = || {
-            TcpListener::bind("127.0.0.1:0")
-                .unwrap()
-                .local_addr()
-                .unwrap()
-                .port()
-        };
-        let output = Command::new("bash")
-            .arg(repo().join("tests/slurm/start.sh"))
-            .arg(state.path())
-            .env("SLURMCTLD_PORT", port().to_string())
-            .env("SLURMD_PORT", port().to_string())
-            .output()
-            .expect("bash runs");
-        let slurm = Slurm {
-            conf: String::from_utf8_lossy(&output.stdout)
-                .lines()
-                .find_map(|line| line.strip_prefix("SLURM_CONF="))
-                .unwrap_or_default()
-                .to_string(),
-            state,
-        };
-        if !output.status.success() || slurm.conf.is_empty() {
-            eprintln!(
-                "skipping the Slurm test: no Slurm could be started here ({}): {}",
-                output.status,
-                String::from_utf8_lossy(&output.stderr).trim()
-            );
-            return None;
-        }
-        Some(slurm)
-    }
-}
-
-impl Drop for Slurm {
-    fn drop(&mut self) {
-        let pids = std::fs::read_to_string(self.state.path().join("pids")).unwrap_or_default();
-        for pid in pids.split_whitespace() {
-            let _ = Command::new("kill").args(["-TERM", pid]).status();
-        }
-        // The daemons write into the state directory until they are gone.
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while pids.split_whitespace().any(alive) && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-}
-
 #[test]
 fn a_sweep_runs_as_a_job_array_on_a_real_slurm() {
-    let Some(slurm) = Slurm::start() else {
+    let Some(slurm) = Slurm::start(1) else {
         return;
     };
     let dir = workspace();
