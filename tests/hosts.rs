@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -20,12 +21,23 @@ const CONFIG: &str = "configs/stage1.toml";
 /// Tells this process's simulated machines apart from another test process's.
 static NEXT_NET: AtomicU32 = AtomicU32::new(0);
 
+/// One simulated cluster at a time: each test runs a whole training run, and the slow-link
+/// test compares actors' paces, which other runs on the same cores would blur.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// How a joined host reaches the central one.
 enum Place {
-    /// Its own network namespace: `ip netns exec <name>`, the central host at `address`.
+    /// Its own network namespace: `ip netns exec <name>`, the central host at `address`,
+    /// reached through the veth pair `outside` (here) and `inside` (there).
     Namespace {
         name: String,
         address: String,
+        outside: String,
+        inside: String,
     },
     Loopback,
 }
@@ -36,6 +48,7 @@ struct Machines {
     hosts: Vec<Place>,
     logs: tempfile::TempDir,
     port: u16,
+    _alone: MutexGuard<'static, ()>,
 }
 
 fn ip(args: &[&str]) -> bool {
@@ -49,6 +62,7 @@ fn ip(args: &[&str]) -> bool {
 
 impl Machines {
     fn new(hosts: usize) -> Self {
+        let alone = one_at_a_time();
         let net = NEXT_NET.fetch_add(1, Ordering::Relaxed);
         let tag = format!("{:x}{net}", std::process::id() % 0xffff);
         let port = std::net::TcpListener::bind("0.0.0.0:0")
@@ -60,6 +74,7 @@ impl Machines {
             hosts: Vec::new(),
             logs: tempfile::tempdir().expect("a temporary directory"),
             port,
+            _alone: alone,
         };
         for host in 0..hosts {
             let place = machines.namespace(net, host).unwrap_or(Place::Loopback);
@@ -113,6 +128,8 @@ impl Machines {
         Some(Place::Namespace {
             name,
             address: format!("{subnet}.1"),
+            outside,
+            inside,
         })
     }
 
@@ -132,13 +149,18 @@ impl Machines {
         }
     }
 
-    /// `pushgrasp train` on the central host, listening on every interface.
+    /// `pushgrasp train` on the central host, listening on every interface (the shipped
+    /// stage-1 config unless `args` name another).
     fn central(&self, run: &str, args: &[&str]) -> Child {
         let listen = format!("tcp/0.0.0.0:{}", self.port);
+        let config: &[&str] = if args.contains(&"--config") {
+            &[]
+        } else {
+            &["--config", CONFIG]
+        };
         Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-            .args([
-                "train", "--config", CONFIG, "--run-id", run, "--listen", &listen,
-            ])
+            .args(["train", "--run-id", run, "--listen", &listen])
+            .args(config)
             .arg("--logs")
             .arg(self.logs())
             .args(args)
@@ -153,7 +175,7 @@ impl Machines {
     /// `pushgrasp join` on joined host `host`, as `name`, with the run's secret file or another.
     fn join(&self, host: usize, run: &str, name: &str, secret: &Path) -> Command {
         let (mut command, address) = match &self.hosts[host] {
-            Place::Namespace { name, address } => {
+            Place::Namespace { name, address, .. } => {
                 let mut command = Command::new("ip");
                 command.args(["netns", "exec", name]);
                 command.arg(env!("CARGO_BIN_EXE_pushgrasp"));
@@ -534,6 +556,7 @@ fn hosts_stop_when_the_central_host_dies_and_join_its_resumed_run() {
 
 #[test]
 fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
+    let _alone = one_at_a_time();
     let Some(slurm) = daemons::Slurm::start(2) else {
         return;
     };
@@ -591,4 +614,152 @@ fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
         u(&joined["steps_received"]) + u(&joined["episode_ends_received"]),
         u(&report["messages_sent"])
     );
+}
+
+#[test]
+fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
+    let machines = Machines::new(1);
+    let Place::Namespace { outside, .. } = &machines.hosts[0] else {
+        eprintln!("skipping the link drop: no network namespace to cut");
+        return;
+    };
+    let run = "drop";
+    let central = machines.central(
+        run,
+        &["--actors", "1", "--remote-actors", "1", "--episodes", "200"],
+    );
+    let secret = machines.secret(run);
+    let joined = machines.join(0, run, "h0", &secret).spawn().unwrap();
+    first_actor_pid(&machines, run, "h0");
+    std::thread::sleep(Duration::from_secs(3));
+    // Longer than Zenoh's lease (5 s): the central host drops the session.
+    assert!(ip(&["link", "set", outside, "down"]));
+    std::thread::sleep(Duration::from_secs(8));
+    assert!(ip(&["link", "set", outside, "up"]));
+    let central = wait_output(central, Duration::from_secs(300), "the central run");
+    succeeded(&central, "the central run");
+    succeeded(
+        &wait_output(joined, Duration::from_secs(60), "the host"),
+        "the host",
+    );
+    let summary = json(&machines.run_dir(run).join("summary.json"));
+    let counted = host(&summary, "h0");
+    // The link was lost and is a fault, the host came back by itself (one join), and
+    // everything it sent arrived: it held its parcels while no one listened.
+    assert_eq!(u(&counted["lost_links"]), 1, "{counted}");
+    assert_eq!(u(&counted["joins"]), 1, "{counted}");
+    assert!(counted["done"] == true, "{counted}");
+    let report = json(&machines.run_dir(run).join("hosts/h0/reports/host.json"));
+    assert_eq!(
+        u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
+        u(&report["messages_sent"])
+    );
+    assert!(
+        summary["faults"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|f| f["role"] == "host h0")
+    );
+}
+
+/// The resident memory of process `pid` in MB, while it lives.
+fn rss_mb(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kb: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb / 1024)
+}
+
+#[test]
+fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
+    let machines = Machines::new(1);
+    let Place::Namespace { name, inside, .. } = &machines.hosts[0] else {
+        eprintln!("skipping the slow link: no network namespace to shape");
+        return;
+    };
+    // 64 kbit/s from the host: a few compressed steps a second, fewer than its actor makes.
+    let shaped = Command::new("ip")
+        .args([
+            "netns", "exec", name, "tc", "qdisc", "add", "dev", inside, "root",
+        ])
+        .args(["tbf", "rate", "64kbit", "burst", "16kbit", "latency", "2s"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !shaped {
+        eprintln!("skipping the slow link: tc cannot shape the veth here");
+        return;
+    }
+    // Weights seldom: their TCP acknowledgements share the shaped way up.
+    let mut config: toml::Table = toml::from_str(
+        &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG)).unwrap(),
+    )
+    .unwrap();
+    config["learner"]
+        .as_table_mut()
+        .unwrap()
+        .insert("publish_every".into(), toml::Value::Integer(50));
+    let seldom = machines.logs().join("seldom.toml");
+    std::fs::write(&seldom, toml::to_string(&config).unwrap()).unwrap();
+    let run = "slow";
+    let central = machines.central(
+        run,
+        &[
+            "--config",
+            seldom.to_str().unwrap(),
+            "--actors",
+            "1",
+            "--remote-actors",
+            "1",
+            "--episodes",
+            "150",
+        ],
+    );
+    let secret = machines.secret(run);
+    let joined = machines.join(0, run, "h0", &secret).spawn().unwrap();
+    let pid = joined.id();
+    let watcher = std::thread::spawn(move || {
+        let mut most = 0;
+        while let Some(mb) = rss_mb(pid) {
+            most = most.max(mb);
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        most
+    });
+    let central = wait_output(central, Duration::from_secs(300), "the central run");
+    succeeded(&central, "the central run");
+    succeeded(
+        &wait_output(joined, Duration::from_secs(120), "the host"),
+        "the host",
+    );
+    let most = watcher.join().unwrap();
+    let summary = json(&machines.run_dir(run).join("summary.json"));
+    let counted = host(&summary, "h0");
+    let report = json(&machines.run_dir(run).join("hosts/h0/reports/host.json"));
+    // Held back, not dropped: everything it sent arrived.
+    assert_eq!(
+        u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
+        u(&report["messages_sent"])
+    );
+    let local = summary["actors_reports"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| u(&a["episodes"]))
+        .sum::<u64>();
+    let remote = u(&counted["episode_ends_received"]);
+    eprintln!(
+        "slow link: remote {remote} episodes, local {local}; the host's bridge at most {most} MB"
+    );
+    assert!(
+        remote * 2 < local,
+        "remote {remote} episodes, local {local}: not held back"
+    );
+    assert!(most < 400, "the joined host's bridge grew to {most} MB");
 }

@@ -232,7 +232,7 @@ fn follow(
         if bridge.failed() {
             bail!("the bridge to the central host stopped");
         }
-        if gone > Duration::ZERO && last_news.elapsed() > Duration::from_secs(5) {
+        if gone >= Duration::from_secs(1) && last_news.elapsed() > Duration::from_secs(5) {
             eprintln!(
                 "the central host has been gone for {:.0} s (giving up after {:.0} s)",
                 gone.as_secs_f64(),
