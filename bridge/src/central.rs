@@ -1,15 +1,11 @@
 //! The central host's bridge: admits joining hosts, takes their steps into the local steps
-//! topic (where the buffer reads them like any local actor's), their actors' progress into
-//! the local status topic, and sends the learner's weights and the launcher's orders to every
-//! host at once. Three threads: joins, up (steps and reports), down (weights, orders, which
-//! hosts are alive).
-//!
-//! Each host has a few parcels in flight at most: the central host acknowledges each parcel
-//! once its steps are in the steps topic (see [`crate::parcel`]), so Zenoh's reader of a
-//! host's link never waits on the buffer, and keeps reading what keeps the session alive.
-//!
-//! A message from a host enters only if it is a step or an episode end of one of the actors
-//! that host was given; anything else is counted as rejected, never passed on.
+//! topic (the buffer reads them like any local actor's) and their actors' progress into the
+//! local status topic, and sends the learner's weights and the launcher's orders to every
+//! host at once. Threads: joins, up (steps, reports, presence), down (weights, orders).
+//! Each parcel is acknowledged once its steps are in the steps topic, so a host has a few in
+//! flight at most and Zenoh's reader of its link never waits on the buffer (it keeps reading
+//! what keeps the session alive). Only steps and episode ends of a host's own actors enter;
+//! anything else is counted as rejected.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -105,11 +101,6 @@ impl Central {
 
     fn hosts(&self) -> MutexGuard<'_, Hosts> {
         lock(&self.hosts)
-    }
-
-    /// Every host the run has seen, with its counts now.
-    pub fn report(&self) -> Vec<HostReport> {
-        self.hosts().hosts.values().cloned().collect()
     }
 
     /// Hosts whose session ended since the last call.

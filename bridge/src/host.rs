@@ -7,7 +7,7 @@
 //! down), the up thread holds its parcel and stops reading, so the actors wait on their
 //! bounded queues; memory does not grow.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -83,7 +83,6 @@ struct Flags {
     central_present: AtomicBool,
     /// Stop the down thread.
     closed: AtomicBool,
-    messages: AtomicU64,
 }
 
 /// A joined host's bridge, running until [`HostBridge::finish`].
@@ -161,11 +160,6 @@ impl HostBridge {
         } else {
             lock(&self.central_seen).elapsed()
         }
-    }
-
-    /// Steps and episode ends sent so far.
-    pub fn messages_sent(&self) -> u64 {
-        self.flags.messages.load(Ordering::Relaxed)
     }
 
     /// Whether a bridge thread has ended (its error comes with [`HostBridge::finish`]).
@@ -320,7 +314,6 @@ fn carry_up(
             .map_err(|e| anyhow::anyhow!("sending steps: {e}"))?;
         report.messages += messages;
         report.parcels += 1;
-        flags.messages.fetch_add(messages, Ordering::Relaxed);
     }
     let number = report.parcels + 1;
     if window.wait_for_room(&steps_out, number, flags)? {

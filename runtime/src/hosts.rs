@@ -32,15 +32,18 @@ pub struct HostLink {
 }
 
 impl HostLink {
-    /// A link that will listen at `endpoint`; writes the run's secret first (kept when the
-    /// run is resumed, so its hosts join again with the same file).
-    pub fn listen_at(
-        endpoint: Endpoint,
+    /// A link that will listen at `endpoint` (none without one); writes the run's secret
+    /// first (kept when the run is resumed, so its hosts join again with the same file).
+    pub fn new(
+        endpoint: Option<&Endpoint>,
         run_id: &str,
         dir: &RunDir,
         config: &RunConfig,
-        transport: Arc<dyn Transport + Send + Sync>,
+        transport: &Arc<dyn Transport + Send + Sync>,
     ) -> Result<Self> {
+        let Some(endpoint) = endpoint.cloned() else {
+            return Ok(Self::default());
+        };
         let secret = RunSecret::create_or_keep(&dir.secret(), run_id)?;
         let admission = Admission {
             run_id: run_id.into(),
@@ -53,7 +56,7 @@ impl HostLink {
                 endpoint,
                 secret,
                 admission,
-                transport,
+                transport: transport.clone(),
             }),
             central: None,
         })

@@ -72,12 +72,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let (run_id, dir, config) = prepare_run(args)?;
     let signals = Signals::install()?;
     let (wiring, transport) = wiring(args.threads, &run_id, &dir)?;
-    let mut link = match &args.listen {
-        Some(endpoint) => {
-            HostLink::listen_at(endpoint.clone(), &run_id, &dir, &config, transport.clone())?
-        }
-        None => HostLink::default(),
-    };
+    let mut link = HostLink::new(args.listen.as_ref(), &run_id, &dir, &config, &transport)?;
     let mut status = Inbox::open(transport.as_ref(), Topic::Status)?;
     let mut control = Outbox::open(transport.as_ref(), Topic::Control)?;
     let log = open_log(&dir, "launcher", &config)?;
@@ -207,14 +202,12 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
     Ok((run_id, dir, config))
 }
 
+/// A transport the bridge's threads share with the launcher.
+type Shared = Arc<dyn Transport + Send + Sync>;
+
 /// How the roles meet: threads over channels, or processes over the run's shared memory
 /// (stale services of an earlier run of this id removed first).
-/// The transport is shared with the bridge's threads, when the run listens for hosts.
-fn wiring(
-    threads: bool,
-    run_id: &str,
-    dir: &RunDir,
-) -> Result<(Wiring, Arc<dyn Transport + Send + Sync>)> {
+fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)> {
     if threads {
         let transport = ChannelTransport::new();
         let wiring = Wiring::Threads {

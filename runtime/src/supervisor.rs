@@ -86,11 +86,7 @@ impl Supervisor {
         }
     }
 
-    fn fault(&mut self, role: RoleId, cause: &str, restarted: bool) {
-        self.record_fault(role.name(), cause, restarted);
-    }
-
-    /// A fault of something the supervisor does not start itself (a joined host).
+    /// A role's fault, or a joined host's (which the supervisor does not start itself).
     pub fn record_fault(&mut self, role: String, cause: &str, restarted: bool) {
         self.faults.push(Fault {
             role,
@@ -259,7 +255,7 @@ impl Supervisor {
                     .or_else(|| outcome.err())
                     .unwrap_or_else(|| "exited before it was told to".into());
                 let RoleId::Learner(incarnation) = spec else {
-                    self.fault(spec, &why, false);
+                    self.record_fault(spec.name(), &why, false);
                     bail!(
                         "the {} cannot continue: {why} (see {})",
                         spec.name(),
@@ -267,7 +263,7 @@ impl Supervisor {
                     );
                 };
                 let restart = incarnation < MAX_LEARNER_RESTARTS;
-                self.fault(spec, &why, restart);
+                self.record_fault(spec.name(), &why, restart);
                 if !restart {
                     bail!(
                         "the learner failed {} times; giving up: {why} (see {})",
@@ -290,7 +286,7 @@ impl Supervisor {
             let crashes = self.crashes.entry(id.index).or_insert(0);
             *crashes += 1;
             let crashes = *crashes;
-            self.fault(spec, &why, crashes <= MAX_RESTARTS);
+            self.record_fault(spec.name(), &why, crashes <= MAX_RESTARTS);
             if crashes > MAX_RESTARTS {
                 bail!("actor {} crashed {crashes} times; giving up", id.index);
             }
