@@ -60,6 +60,16 @@ impl Drop for Slurm {
         for pid in pids.split_whitespace() {
             let _ = Command::new("kill").args(["-TERM", pid]).status();
         }
+        // A job step's slurmstepd can outlive its slurmd: what still carries this Slurm's
+        // config in its environment goes too.
+        let ours = format!("SLURM_CONF={}\0", self.conf);
+        for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+            let environ = std::fs::read(entry.path().join("environ")).unwrap_or_default();
+            if environ.windows(ours.len()).any(|w| w == ours.as_bytes()) {
+                let pid = entry.file_name().to_string_lossy().into_owned();
+                let _ = Command::new("kill").args(["-KILL", &pid]).status();
+            }
+        }
         // The daemons write into the state directory until they are gone.
         let alive = |pid: &str| Path::new(&format!("/proc/{pid}")).exists();
         let deadline = Instant::now() + Duration::from_secs(10);
