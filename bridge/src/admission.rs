@@ -71,8 +71,15 @@ pub(crate) struct Hosts {
     pub(crate) hosts: BTreeMap<String, HostReport>,
     /// No host is admitted once the run is stopping.
     pub(crate) closing: bool,
-    /// Hosts whose session ended, in order (for the run's faults).
-    pub(crate) losses: Vec<String>,
+    /// Hosts lost and back, in order (for the run's faults).
+    pub(crate) news: Vec<HostNews>,
+}
+
+/// A host's session ended before it was done, or came back after that.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum HostNews {
+    Lost(String),
+    Back(String),
 }
 
 impl Hosts {
@@ -94,7 +101,7 @@ impl Hosts {
             admission,
             hosts,
             closing: false,
-            losses: Vec::new(),
+            news: Vec::new(),
         })
     }
 

@@ -18,7 +18,7 @@ use zenoh::Wait;
 use zenoh::sample::SampleKind;
 use zenoh::{Session, liveliness::LivelinessToken};
 
-use crate::admission::{Admission, HostReport, Hosts};
+use crate::admission::{Admission, HostNews, HostReport, Hosts};
 use crate::join::{self, JoinReply, JoinRequest};
 use crate::link::{self, Keys, Stream};
 use crate::parcel::{self, Parcel};
@@ -103,9 +103,9 @@ impl Central {
         lock(&self.hosts)
     }
 
-    /// Hosts whose session ended since the last call.
-    pub fn take_losses(&self) -> Vec<String> {
-        std::mem::take(&mut self.hosts().losses)
+    /// Hosts lost or back since the last call.
+    pub fn take_news(&self) -> Vec<HostNews> {
+        std::mem::take(&mut self.hosts().news)
     }
 
     /// Whether a bridge thread has failed (its error comes with [`Central::close`]).
@@ -267,15 +267,18 @@ fn carry_up(
             let mut hosts = lock(hosts);
             let host = hosts.host(name);
             if sample.kind() == SampleKind::Put {
+                let back = !host.alive && host.lost_links > 0;
                 host.alive = true;
                 resend.store(true, Ordering::Release);
+                if back {
+                    hosts.news.push(HostNews::Back(name.to_owned()));
+                }
             } else if host.alive {
                 host.alive = false;
                 // Done: it said it had sent everything, and leaving is what it should do.
                 if !host.done {
                     host.lost_links += 1;
-                    let lost = host.host.clone();
-                    hosts.losses.push(lost);
+                    hosts.news.push(HostNews::Lost(name.to_owned()));
                 }
             }
         }

@@ -14,7 +14,7 @@ pub mod refusals;
 pub mod secret;
 pub mod session;
 
-pub use admission::{Admission, HostReport};
+pub use admission::{Admission, HostNews, HostReport};
 pub use central::Central;
 pub use host::HostBridge;
 pub use join::{JoinRequest, Placement};

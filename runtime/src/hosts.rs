@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Result, bail};
-use bridge::{Admission, Central, Endpoint, HostReport, RunSecret};
+use bridge::{Admission, Central, Endpoint, HostNews, HostReport, RunSecret};
 use wire::Transport;
 
 use crate::config::RunConfig;
@@ -94,7 +94,7 @@ impl HostLink {
             central.close()?;
             bail!("the bridge to the joined hosts stopped");
         }
-        record_losses(central, supervisor);
+        record_news(central, supervisor);
         Ok(())
     }
 
@@ -104,7 +104,7 @@ impl HostLink {
             return;
         };
         let unfinished = central.wait_for_hosts(HOSTS_STOP_TIMEOUT);
-        record_losses(central, supervisor);
+        record_news(central, supervisor);
         for host in unfinished {
             let cause = format!("did not finish within {HOSTS_STOP_TIMEOUT:?} of the stop");
             eprintln!("host {host} {cause}");
@@ -121,12 +121,30 @@ impl HostLink {
     }
 }
 
-/// The hosts lost since the last look, as faults: the run goes on without them.
-fn record_losses(central: &Central, supervisor: &mut Supervisor) {
-    for host in central.take_losses() {
-        let cause = "its session ended before it was done (the host died or its link dropped)";
-        eprintln!("host {host}: {cause}; the run goes on without it");
-        supervisor.record_fault(format!("host {host}"), cause, false);
+/// The hosts lost since the last look, as faults (the run goes on without them); a host
+/// back (its link again, or joined again) marks its fault as recovered.
+fn record_news(central: &Central, supervisor: &mut Supervisor) {
+    for news in central.take_news() {
+        match news {
+            HostNews::Lost(host) => {
+                let cause =
+                    "its session ended before it was done (the host died or its link dropped)";
+                eprintln!("host {host}: {cause}; the run goes on without it");
+                supervisor.record_fault(format!("host {host}"), cause, false);
+            }
+            HostNews::Back(host) => {
+                eprintln!("host {host} is back");
+                let role = format!("host {host}");
+                if let Some(fault) = supervisor
+                    .faults
+                    .iter_mut()
+                    .rev()
+                    .find(|f| f.role == role && !f.restarted)
+                {
+                    fault.restarted = true;
+                }
+            }
+        }
     }
 }
 

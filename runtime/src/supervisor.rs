@@ -388,7 +388,7 @@ pub struct Fault {
     /// Seconds from the launcher's start to when it noticed.
     pub at_s: f64,
     pub cause: String,
-    /// Whether it was started again and the run went on.
+    /// Whether it was started again and the run went on (a joined host: it came back).
     pub restarted: bool,
     /// For an actor: the messages of its stream that never reached the buffer (filled in
     /// from the buffer's counts when the run ends).
