@@ -2,10 +2,9 @@
 //! topic (the buffer reads them like any local actor's) and their actors' progress into the
 //! local status topic, and sends the learner's weights and the launcher's orders to every
 //! host at once. Threads: joins, up (steps, reports, presence), down (weights, orders).
-//! Each parcel is acknowledged once its steps are in the steps topic, so a host has a few in
-//! flight at most and Zenoh's reader of its link never waits on the buffer (it keeps reading
-//! what keeps the session alive). Only steps and episode ends of a host's own actors enter;
-//! anything else is counted as rejected.
+//! Each parcel is acknowledged once its steps are in the steps topic: a host has a few in
+//! flight at most, so Zenoh's reader of its link never waits on the buffer. Only steps and
+//! episode ends of a host's own actors enter; anything else is counted as rejected.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -28,11 +27,23 @@ const POLL: Duration = Duration::from_millis(50);
 
 /// The central host's bridge, running until [`Central::close`].
 pub struct Central {
-    session: Session,
-    hosts: Arc<Mutex<Hosts>>,
-    stop: Arc<AtomicBool>,
+    shared: Arc<Shared>,
     threads: Vec<JoinHandle<Result<()>>>,
     _token: LivelinessToken,
+}
+
+/// One of the bridge's threads.
+type Thread = fn(&Shared) -> Result<()>;
+
+/// What the bridge's threads share.
+struct Shared {
+    session: Session,
+    keys: Keys,
+    hosts: Mutex<Hosts>,
+    stop: AtomicBool,
+    /// A host appeared: the newest weights and orders go out again.
+    resend: AtomicBool,
+    transport: Arc<dyn Transport + Send + Sync>,
 }
 
 impl Central {
@@ -43,64 +54,44 @@ impl Central {
         transport: Arc<dyn Transport + Send + Sync>,
         admission: Admission,
     ) -> Result<Self> {
-        let keys = Keys::new(&admission.run_id);
-        let hosts = Arc::new(Mutex::new(Hosts::load(admission)?));
-        let stop = Arc::new(AtomicBool::new(false));
-        let resend = Arc::new(AtomicBool::new(false));
+        let shared = Arc::new(Shared {
+            keys: Keys::new(&admission.run_id),
+            hosts: Mutex::new(Hosts::load(admission)?),
+            session,
+            stop: AtomicBool::new(false),
+            resend: AtomicBool::new(false),
+            transport,
+        });
         let mut threads = Vec::new();
-        let spawn = |name: &str, body: Box<dyn FnOnce() -> Result<()> + Send>| {
-            std::thread::Builder::new()
-                .name(name.into())
-                .spawn(body)
-                .with_context(|| format!("starting the bridge's {name} thread"))
-        };
-        {
-            let (session, keys, hosts, stop) =
-                (session.clone(), keys.clone(), hosts.clone(), stop.clone());
-            threads.push(spawn(
-                "bridge-joins",
-                Box::new(move || answer_joins(&session, &keys, &hosts, &stop)),
-            )?);
-        }
-        {
-            let (session, keys, hosts, stop, resend, transport) = (
-                session.clone(),
-                keys.clone(),
-                hosts.clone(),
-                stop.clone(),
-                resend.clone(),
-                transport.clone(),
+        let bodies: [(&str, Thread); 3] = [
+            ("bridge-joins", answer_joins),
+            ("bridge-up", carry_up),
+            ("bridge-down", carry_down),
+        ];
+        for (name, body) in bodies {
+            let shared = shared.clone();
+            threads.push(
+                std::thread::Builder::new()
+                    .name(name.into())
+                    .spawn(move || body(&shared))
+                    .with_context(|| format!("starting the bridge's {name} thread"))?,
             );
-            threads.push(spawn(
-                "bridge-up",
-                Box::new(move || {
-                    carry_up(&session, &keys, &hosts, &stop, &resend, transport.as_ref())
-                }),
-            )?);
         }
-        {
-            let (session, keys, stop) = (session.clone(), keys.clone(), stop.clone());
-            threads.push(spawn(
-                "bridge-down",
-                Box::new(move || carry_down(&session, &keys, &stop, &resend, transport.as_ref())),
-            )?);
-        }
-        let token = session
+        let token = shared
+            .session
             .liveliness()
-            .declare_token(keys.central())
+            .declare_token(shared.keys.central())
             .wait()
             .map_err(|e| anyhow::anyhow!("declaring the central host's presence: {e}"))?;
         Ok(Self {
-            session,
-            hosts,
-            stop,
+            shared,
             threads,
             _token: token,
         })
     }
 
     fn hosts(&self) -> MutexGuard<'_, Hosts> {
-        lock(&self.hosts)
+        lock(&self.shared.hosts)
     }
 
     /// Hosts lost or back since the last call.
@@ -136,7 +127,7 @@ impl Central {
 
     /// Stops the bridge and closes the session; returns the hosts' final counts.
     pub fn close(self) -> Result<Vec<HostReport>> {
-        self.stop.store(true, Ordering::Release);
+        self.shared.stop.store(true, Ordering::Release);
         let mut outcome = Ok(());
         for thread in self.threads {
             let result = thread
@@ -147,11 +138,12 @@ impl Central {
             }
         }
         let report = {
-            let hosts = lock(&self.hosts);
+            let hosts = lock(&self.shared.hosts);
             let _ = hosts.save();
             hosts.hosts.values().cloned().collect()
         };
-        self.session
+        self.shared
+            .session
             .close()
             .wait()
             .map_err(|e| anyhow::anyhow!("closing the Zenoh session: {e}"))?;
@@ -168,12 +160,14 @@ fn zenoh_error(what: &str) -> impl FnOnce(zenoh::Error) -> anyhow::Error + '_ {
 }
 
 /// Answers join queries until stopped.
-fn answer_joins(
-    session: &Session,
-    keys: &Keys,
-    hosts: &Mutex<Hosts>,
-    stop: &AtomicBool,
-) -> Result<()> {
+fn answer_joins(shared: &Shared) -> Result<()> {
+    let Shared {
+        session,
+        keys,
+        hosts,
+        stop,
+        ..
+    } = shared;
     let queryable = session
         .declare_queryable(keys.join())
         .wait()
@@ -204,14 +198,15 @@ fn answer_joins(
 /// Hosts' steps into the local steps topic, their actors' reports into the local status
 /// topic, which hosts come and go, until stopped. A host's leaving is judged only when the
 /// steps queue is empty: its last parcel (done or not) arrived before its session ended.
-fn carry_up(
-    session: &Session,
-    keys: &Keys,
-    hosts: &Mutex<Hosts>,
-    stop: &AtomicBool,
-    resend: &AtomicBool,
-    transport: &dyn Transport,
-) -> Result<()> {
+fn carry_up(shared: &Shared) -> Result<()> {
+    let Shared {
+        session,
+        keys,
+        hosts,
+        stop,
+        resend,
+        transport,
+    } = shared;
     let steps_in = link::subscriber(session, keys.every_host(Stream::Steps))?;
     let status_in = link::newest_subscriber(session, keys.every_host(Stream::Status))?;
     let presence = session
@@ -369,13 +364,15 @@ fn take_parcel(
 
 /// The learner's weights and the launcher's orders to every host, the newest of each again
 /// whenever a host appears (`resend`).
-fn carry_down(
-    session: &Session,
-    keys: &Keys,
-    stop: &AtomicBool,
-    resend: &AtomicBool,
-    transport: &dyn Transport,
-) -> Result<()> {
+fn carry_down(shared: &Shared) -> Result<()> {
+    let Shared {
+        session,
+        keys,
+        stop,
+        resend,
+        transport,
+        ..
+    } = shared;
     let mut weights_in = transport.subscriber(Topic::Weights)?;
     let mut control_in = transport.subscriber(Topic::Control)?;
     let mut newest: [Option<Vec<u8>>; 2] = [None, None];
