@@ -286,6 +286,19 @@ fn host<'s>(summary: &'s Value, name: &str) -> &'s Value {
         .unwrap_or_else(|| panic!("no host {name} in {}", summary["hosts"]))
 }
 
+/// Checks that every step and episode end joined host `name` sent (its own report, in
+/// `run_dir`) is counted in by the central host; returns the central host's entry for it.
+fn all_arrived<'s>(summary: &'s Value, run_dir: &Path, name: &str) -> &'s Value {
+    let counted = host(summary, name);
+    let report = json(&run_dir.join(format!("hosts/{name}/reports/host.json")));
+    assert_eq!(
+        u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
+        u(&report["messages_sent"]),
+        "{counted}"
+    );
+    counted
+}
+
 /// The reports of a joined host's actors.
 fn actor_reports(dir: &Path) -> Vec<Value> {
     std::fs::read_dir(dir.join("reports"))
@@ -351,12 +364,8 @@ fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused()
         let dir = machines.run_dir(run).join("hosts").join(format!("h{h}"));
         let report = json(&dir.join("reports/host.json"));
         let summary = json(&machines.run_dir(run).join("summary.json"));
-        let counted = host(&summary, &format!("h{h}"));
         // Every step and episode end the host sent is in, none refused, none lost.
-        assert_eq!(
-            u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
-            u(&report["messages_sent"])
-        );
+        let counted = all_arrived(&summary, &machines.run_dir(run), &format!("h{h}"));
         assert_eq!(u(&counted["rejected"]), 0);
         assert_eq!(u(&counted["lost_in_flight"]), 0);
         assert!(
@@ -604,15 +613,10 @@ fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
     }
     let summary = json(&logs.path().join("spread/summary.json"));
     assert!(u(&summary["buffer"]["episodes"]) >= 30);
-    let joined = host(&summary, "pg2");
+    let joined = all_arrived(&summary, &logs.path().join("spread"), "pg2");
     assert!(
         u(&joined["steps_received"]) > 0 && joined["done"] == true,
         "{joined}"
-    );
-    let report = json(&logs.path().join("spread/hosts/pg2/reports/host.json"));
-    assert_eq!(
-        u(&joined["steps_received"]) + u(&joined["episode_ends_received"]),
-        u(&report["messages_sent"])
     );
 }
 
@@ -643,17 +647,12 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
         "the host",
     );
     let summary = json(&machines.run_dir(run).join("summary.json"));
-    let counted = host(&summary, "h0");
     // The link was lost and is a fault, the host came back by itself (one join), and
     // everything it sent arrived: it held its parcels while no one listened.
+    let counted = all_arrived(&summary, &machines.run_dir(run), "h0");
     assert_eq!(u(&counted["lost_links"]), 1, "{counted}");
     assert_eq!(u(&counted["joins"]), 1, "{counted}");
     assert!(counted["done"] == true, "{counted}");
-    let report = json(&machines.run_dir(run).join("hosts/h0/reports/host.json"));
-    assert_eq!(
-        u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
-        u(&report["messages_sent"])
-    );
     // The fault says the host came back.
     let faults = summary["faults"].as_array().unwrap();
     assert!(
@@ -741,13 +740,8 @@ fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
     );
     let most = watcher.join().unwrap();
     let summary = json(&machines.run_dir(run).join("summary.json"));
-    let counted = host(&summary, "h0");
-    let report = json(&machines.run_dir(run).join("hosts/h0/reports/host.json"));
     // Held back, not dropped: everything it sent arrived.
-    assert_eq!(
-        u(&counted["steps_received"]) + u(&counted["episode_ends_received"]),
-        u(&report["messages_sent"])
-    );
+    let counted = all_arrived(&summary, &machines.run_dir(run), "h0");
     let local = summary["actors_reports"]
         .as_array()
         .unwrap()

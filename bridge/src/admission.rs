@@ -56,7 +56,12 @@ impl HostReport {
         (self.first_actor..self.first_actor + self.actors).contains(&actor)
     }
 
+    /// Steps its actors reported sent that never arrived, from the streams seen in this
+    /// process (a host seen only before a resume keeps its saved count).
     pub(crate) fn count_lost(&mut self) {
+        if self.streams.is_empty() {
+            return;
+        }
         self.lost_in_flight = self
             .streams
             .values()

@@ -138,7 +138,8 @@ impl Central {
             }
         }
         let report = {
-            let hosts = lock(&self.shared.hosts);
+            let mut hosts = lock(&self.shared.hosts);
+            hosts.hosts.values_mut().for_each(HostReport::count_lost);
             let _ = hosts.save();
             hosts.hosts.values().cloned().collect()
         };
@@ -300,7 +301,6 @@ fn take_report(
             ..
         })) if host.owns(actor) => {
             host.streams.entry((actor, incarnation)).or_default().0 = steps_sent;
-            host.count_lost();
             status_out.send(bytes)?;
         }
         _ => host.rejected += 1,
@@ -329,7 +329,8 @@ fn take_parcel(
         }
     };
     for message in messages {
-        // Checked under the lock, sent outside it: the buffer may hold a step back.
+        // Decoded whole, so that nothing the buffer cannot read reaches it (that would end
+        // its run); checked under the lock, sent outside it: the buffer may hold a step back.
         let admitted = {
             let mut hosts = lock(hosts);
             let host = hosts.host(host);
@@ -352,7 +353,6 @@ fn take_parcel(
             if !admitted {
                 host.rejected += 1;
             }
-            host.count_lost();
             admitted
         };
         if admitted {

@@ -79,8 +79,8 @@ struct Flags {
     abandon: AtomicBool,
     /// The run ordered the actors to stop.
     stop_ordered: AtomicBool,
-    /// Set while the central host's presence is seen.
-    central_present: AtomicBool,
+    /// Since when the central host's presence has not been seen (None while it is).
+    central_gone_since: Mutex<Option<Instant>>,
     /// Stop the down thread.
     closed: AtomicBool,
 }
@@ -89,8 +89,6 @@ struct Flags {
 pub struct HostBridge {
     session: Session,
     flags: Arc<Flags>,
-    /// When the central host was last seen present.
-    central_seen: Arc<Mutex<Instant>>,
     up: JoinHandle<Result<UpReport>>,
     down: JoinHandle<Result<()>>,
     _token: LivelinessToken,
@@ -106,22 +104,22 @@ impl HostBridge {
         host: &str,
         transport: Arc<dyn Transport + Send + Sync>,
     ) -> Result<Self> {
-        let flags = Arc::new(Flags::default());
-        let central_seen = Arc::new(Mutex::new(Instant::now()));
+        // Not seen yet: gone since now, until its presence arrives.
+        let flags = Arc::new(Flags {
+            central_gone_since: Mutex::new(Some(Instant::now())),
+            ..Flags::default()
+        });
         let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<()>>(1);
         let down = {
-            let (session, keys, flags, seen, transport) = (
+            let (session, keys, flags, transport) = (
                 session.clone(),
                 keys.clone(),
                 flags.clone(),
-                central_seen.clone(),
                 transport.clone(),
             );
             std::thread::Builder::new()
                 .name("bridge-down".into())
-                .spawn(move || {
-                    carry_down(&session, &keys, &flags, &seen, transport.as_ref(), ready_tx)
-                })?
+                .spawn(move || carry_down(&session, &keys, &flags, transport.as_ref(), ready_tx))?
         };
         ready_rx
             .recv()
@@ -141,7 +139,6 @@ impl HostBridge {
         Ok(Self {
             session,
             flags,
-            central_seen,
             up,
             down,
             _token: token,
@@ -155,11 +152,7 @@ impl HostBridge {
 
     /// How long the central host has been gone (zero while it is present).
     pub fn central_gone_for(&self) -> Duration {
-        if self.flags.central_present.load(Ordering::Acquire) {
-            Duration::ZERO
-        } else {
-            lock(&self.central_seen).elapsed()
-        }
+        lock(&self.flags.central_gone_since).map_or(Duration::ZERO, |since| since.elapsed())
     }
 
     /// Whether a bridge thread has ended (its error comes with [`HostBridge::finish`]).
@@ -167,13 +160,9 @@ impl HostBridge {
         self.up.is_finished() || self.down.is_finished()
     }
 
-    /// After the actors stopped: sends what they left and says this host is done, or, when
-    /// `abandon` (the central host is gone), throws it away (counted); then closes the
-    /// session.
-    pub fn finish(self, abandon: bool) -> Result<UpReport> {
-        if abandon {
-            self.flags.abandon.store(true, Ordering::Release);
-        }
+    /// After the actors stopped: sends what they left and says this host is done (or, after
+    /// [`HostBridge::abandon`], throws it away, counted); then closes the session.
+    pub fn finish(self) -> Result<UpReport> {
         self.flags.finishing.store(true, Ordering::Release);
         let up = self
             .up
@@ -337,7 +326,6 @@ fn carry_down(
     session: &Session,
     keys: &Keys,
     flags: &Flags,
-    central_seen: &Mutex<Instant>,
     transport: &dyn Transport,
     ready: crossbeam_channel::Sender<Result<()>>,
 ) -> Result<()> {
@@ -366,9 +354,8 @@ fn carry_down(
     let mut last_refresh = Instant::now();
     while !flags.closed.load(Ordering::Acquire) {
         while let Some(sample) = central.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
-            let present = sample.kind() == SampleKind::Put;
-            flags.central_present.store(present, Ordering::Release);
-            *lock(central_seen) = Instant::now();
+            let gone = sample.kind() != SampleKind::Put;
+            *lock(&flags.central_gone_since) = gone.then(Instant::now);
         }
         while let Some(sample) = control_in.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
             if let Ok(Message::Control(Control::Stop(Role::Actor))) =

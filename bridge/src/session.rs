@@ -81,9 +81,7 @@ fn base(mode: &str) -> Result<Config> {
         ("adminspace/enabled", "false".into()),
     ];
     for (key, value) in settings {
-        config
-            .insert_json5(key, &value)
-            .map_err(|e| anyhow::anyhow!("Zenoh setting {key} = {value}: {e}"))?;
+        set(&mut config, key, &value)?;
     }
     Ok(config)
 }

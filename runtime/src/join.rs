@@ -169,7 +169,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     for problem in &problems {
         eprintln!("while stopping: {problem}");
     }
-    let sent = bridge.finish(abandon)?;
+    let sent = bridge.finish()?;
     let restarts = supervisor.restarts();
     supervisor.log.finish()?;
     let ended = match &outcome {
