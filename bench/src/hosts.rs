@@ -19,18 +19,19 @@ use bridge::zenoh::Wait;
 use bridge::{Endpoint, Keys, RunSecret, Stream, link, session};
 use clap::Args;
 use serde::Serialize;
-use sim::{Camera, SimConfig, Tabletop};
+use sim::SimConfig;
 use wire::{Message, Origin, Step};
 
-use super::{median, print_figures};
+use super::{median, print_figures, rendered_scene};
 
 #[derive(Args)]
 pub struct HostsBenchArgs {
     /// Print one JSON object instead of a table.
     #[arg(long)]
     json: bool,
-    /// Steps of each throughput measurement.
-    #[arg(long, default_value_t = 2000)]
+    /// Steps of each throughput measurement (enough that one lasts a good fraction of a
+    /// second: a few thousand pass in milliseconds and time mostly the start).
+    #[arg(long, default_value_t = 30_000)]
     steps: usize,
     /// Repetitions of each throughput figure (medians are reported).
     #[arg(long, default_value_t = 3)]
@@ -187,8 +188,7 @@ fn packing(steps: &[Vec<u8>]) -> Result<Packing> {
 
 /// A step as an actor ships it: a settled scene of ten blocks at the run's resolution.
 fn real_step(config: &SimConfig, seed: u64) -> Result<Vec<u8>> {
-    let (tabletop, _) = Tabletop::random(config, 10, seed)?;
-    let obs = Camera::new(tabletop.grid()).render(&tabletop);
+    let obs = rendered_scene(config, 10, seed)?;
     let goal = obs.visible_ids()[0];
     let step = Step {
         origin: Origin {

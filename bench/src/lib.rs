@@ -29,7 +29,8 @@ pub enum BenchCommand {
     /// backend's matmul peak.
     Learner(LearnerBenchArgs),
     /// The prioritised replay: inserts and learner steps (sample with importance-sampling
-    /// weights, update priorities) at 2^17 and 2^21 slots, beside cpprb when Python has it.
+    /// weights, update priorities) at 2^17 and 2^21 slots, beside cpprb when Python has it;
+    /// then real steps at 112² and 224²: compression, memory, snapshot and resume.
     Buffer(replay::BufferBenchArgs),
     /// The whole system: actions/s of real training runs with 1, 2 and 4 actor processes,
     /// and the learner's updates/s.
@@ -119,6 +120,12 @@ fn median(mut values: Vec<f64>) -> f64 {
 
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
+}
+
+/// The heightmaps of a settled random scene of `objects` blocks: what an actor observes.
+fn rendered_scene(config: &SimConfig, objects: usize, seed: u64) -> Result<Heightmaps> {
+    let (tabletop, _) = Tabletop::random(config, objects, seed)?;
+    Ok(Camera::new(tabletop.grid()).render(&tabletop))
 }
 
 /// Wall-clock of one call.

@@ -1,28 +1,32 @@
 //! `pushgrasp bench buffer`: the prioritised replay's insert rate and learner-step rate (sample
 //! a batch with importance-sampling weights, then update its priorities) at two capacities,
-//! beside cpprb's `PrioritizedReplayBuffer` run the same way when Python has it.
+//! beside cpprb's `PrioritizedReplayBuffer` run the same way when Python has it; then the
+//! same on real steps at 112² and 224² ([`real`]): bytes stored per step, compression,
+//! memory, snapshot and resume.
 //!
-//! The figures measure the replay's bookkeeping: the ring, the sum tree, stratified sampling,
-//! the importance-sampling weights and the priority updates. The stored transitions are real
-//! [`Transition`]s, but on the coarsest grid the simulator allows (8 x 8 pixels), so that
-//! 2^21 of them fit in memory; the replay never reads an observation while sampling (a batch
-//! holds references), so the size of the maps does not enter the learner-step figure. cpprb
-//! runs with small observations likewise (one 8 x 8 byte map each for `obs` and `next_obs`);
-//! it copies the sampled rows into its batch, ours does not. cpprb inserts a chunk of rows per
-//! call, ours one transition per call.
+//! The small-item figures measure the replay's bookkeeping: the ring, the sum tree,
+//! stratified sampling, the importance-sampling weights and the priority updates. The stored
+//! transitions are real [`StoredTransition`]s, but on the coarsest grid the simulator allows
+//! (8 x 8 pixels), so that 2^21 of them fit in memory; the replay never reads an observation
+//! while sampling (a batch holds references), so the size of the maps does not enter the
+//! learner-step figure. cpprb runs with small observations likewise (one 8 x 8 byte map each
+//! for `obs` and `next_obs`); it copies the sampled rows into its batch, ours does not. cpprb
+//! inserts a chunk of rows per call, ours one transition per call.
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::Result;
-use buffer::{BufferConfig, PrioritizedReplay};
+use anyhow::{Context, Result};
+use buffer::{BufferConfig, PrioritizedReplay, StoredTransition};
 use clap::Args;
 use experience::Transition;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{Map, Value};
 use sim::{Action, Heightmaps, PixelGrid, Primitive};
+
+mod real;
 
 use super::python::{default_python, script_figures};
 use super::{median, print_figures, timed};
@@ -53,9 +57,22 @@ pub struct BufferBenchArgs {
     /// Leave cpprb out.
     #[arg(long)]
     no_cpprb: bool,
+    /// Leave out the figures on real steps (several minutes, up to ~10 GB of memory).
+    #[arg(long)]
+    no_real: bool,
+    /// Only the real-step figures at this side (what each child process measures).
+    #[arg(long, hide = true)]
+    real_side: Option<usize>,
 }
 
 pub fn bench_buffer(args: &BufferBenchArgs) -> Result<()> {
+    if let Some(side) = args.real_side {
+        let (_, exponent) = real::SIDES
+            .into_iter()
+            .find(|(s, _)| *s == side)
+            .with_context(|| format!("no real-step figures at side {side}"))?;
+        return print_figures(&Value::Object(real::figures(side, exponent)?), true);
+    }
     let steps = args.steps.max(1);
     let mut figures = Map::new();
     figures.insert("batch".into(), BATCH.into());
@@ -105,6 +122,9 @@ pub fn bench_buffer(args: &BufferBenchArgs) -> Result<()> {
                 figures.insert("cpprb".into(), format!("not run: {why:#}").into());
             }
         }
+    }
+    if !args.no_real {
+        real::in_children(&mut figures)?;
     }
     print_figures(&Value::Object(figures), args.json)
 }
@@ -186,13 +206,14 @@ fn bench_ours(capacity: usize, steps: usize) -> Result<OurFigures> {
     })
 }
 
-/// A grasp step on the coarse grid; `i` varies what a learner would read.
-fn transition(grid: PixelGrid, i: u64) -> Transition {
+/// A grasp step on the coarse grid, packed as the buffer stores it; `i` varies what a
+/// learner would read.
+fn transition(grid: PixelGrid, i: u64) -> StoredTransition {
     let mut obs = Heightmaps::new(grid);
     let pixels = obs.ids.len();
     obs.ids[i as usize % pixels] = 1;
     obs.height[i as usize % pixels] = 0.025;
-    Transition {
+    buffer::observation::store(Transition {
         episode: i / 8,
         step: (i % 8) as u32,
         goal: 1,
@@ -206,7 +227,7 @@ fn transition(grid: PixelGrid, i: u64) -> Transition {
         reward: if i.is_multiple_of(3) { 1.0 } else { 0.0 },
         grasped: i.is_multiple_of(3).then_some(1),
         next_value: Some(0.5),
-    }
+    })
 }
 
 /// A size line of /proc/self/status ("VmRSS:", "VmHWM:") in MB, where there is one.

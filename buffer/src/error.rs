@@ -2,7 +2,10 @@
 
 use std::path::PathBuf;
 
+use experience::Key;
 use sim::{ObjectId, Primitive};
+
+use crate::observation::CorruptObservation;
 
 /// A request the replay cannot serve.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -15,6 +18,8 @@ pub enum ReplayError {
     BadPriority(f64),
     #[error("the rate limiter holds sampling back: {samples} sampled for {inserts} inserted")]
     RateLimited { inserts: u64, samples: u64 },
+    #[error("the observation of {key:?} is damaged: {why}")]
+    Corrupt { key: Key, why: CorruptObservation },
 }
 
 /// An episode whose steps do not fit together.

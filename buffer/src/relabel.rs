@@ -13,10 +13,15 @@
 //!
 //! Pushes after the relabelled grasp, and pushes whose observation does not show g' (its goal
 //! mask would be empty, which the policy never acts on), are not copied.
+//!
+//! An ending episode's observations are packed here, once per step (in parallel): a copy
+//! shares its original's packed observation.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use policy::{GRASP_REWARD, PushReward};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
 use sim::{ObjectId, Primitive};
@@ -24,6 +29,7 @@ use sim::{ObjectId, Primitive};
 use experience::Transition;
 
 use crate::error::AssembleError;
+use crate::observation::{PackedObservation, StoredTransition};
 
 /// A step waiting for its episode to end, with the actor's initial priority (|TD error|).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -32,10 +38,10 @@ pub struct Pending {
     pub priority: Option<f64>,
 }
 
-/// A transition ready to store.
+/// A transition ready to store, its observation packed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ready {
-    pub transition: Transition,
+    pub transition: StoredTransition,
     /// The actor's priority for originals; `None` (the buffer's largest priority, as for any
     /// unseen experience) for relabelled copies, whose TD error nobody has computed.
     pub priority: Option<f64>,
@@ -124,28 +130,52 @@ impl EpisodeAssembler {
         };
         self.relabelled += copies.len() as u64;
         let mut ready = self.flush(episode);
-        ready.extend(copies.into_iter().map(|transition| Ready {
-            transition,
-            priority: None,
-            relabelled: true,
-        }));
+        let copies = copies.into_iter().map(|copy| {
+            let original = &ready[copy.of].transition;
+            Ready {
+                transition: Transition {
+                    goal: copy.goal,
+                    reward: copy.reward,
+                    obs: Arc::clone(&original.obs),
+                    ..*original
+                },
+                priority: None,
+                relabelled: true,
+            }
+        });
+        let copies: Vec<Ready> = copies.collect();
+        ready.extend(copies);
         Ok(ready)
     }
 
     /// Closes an episode without relabelling (an actor that died mid-episode) and returns its
     /// steps in order, so none is lost; an unknown episode gives nothing.
     pub fn flush(&mut self, episode: u64) -> Vec<Ready> {
-        self.open
+        let steps: Vec<Pending> = self
+            .open
             .remove(&episode)
             .into_iter()
             .flat_map(|steps| steps.into_values())
-            .map(|p| Ready {
-                transition: p.transition,
-                priority: p.priority,
-                relabelled: false,
+            .collect();
+        steps
+            .into_par_iter()
+            .map(|p| {
+                let obs = Arc::new(PackedObservation::pack(&p.transition.obs));
+                Ready {
+                    transition: p.transition.with_obs(obs),
+                    priority: p.priority,
+                    relabelled: false,
+                }
             })
             .collect()
     }
+}
+
+/// A relabelled copy of the episode's step `of`: another goal, another reward.
+struct Copy {
+    of: usize,
+    goal: ObjectId,
+    reward: f32,
 }
 
 /// The relabelled copies of a contiguous episode (`steps[i].step == i`) whose last grasp of
@@ -155,7 +185,7 @@ fn relabel(
     steps: &[&Transition],
     object: ObjectId,
     relabelling: Option<PushReward>,
-) -> Option<Vec<Transition>> {
+) -> Option<Vec<Copy>> {
     let grasp = steps
         .iter()
         .rposition(|t| t.primitive() == Primitive::Grasp && t.grasped == Some(object))?;
@@ -164,22 +194,22 @@ fn relabel(
         return Some(Vec::new());
     };
     let mut copies = Vec::new();
-    for (t, next) in steps[..grasp].iter().zip(&steps[1..=grasp]) {
+    for (of, (t, next)) in steps[..grasp].iter().zip(&steps[1..=grasp]).enumerate() {
         if t.primitive() != Primitive::Push || t.goal == object || !t.obs.ids.contains(&object) {
             continue;
         }
         let change = detect_change(&t.obs, &next.obs, object);
-        copies.push(Transition {
+        copies.push(Copy {
+            of,
             goal: object,
             reward: push_reward.relabelled(&change),
-            ..(*t).clone()
         });
     }
-    copies.push(Transition {
+    copies.push(Copy {
+        of: grasp,
         goal: object,
         // The grasp reward for g': it picked g'.
         reward: GRASP_REWARD,
-        ..steps[grasp].clone()
     });
     Some(copies)
 }

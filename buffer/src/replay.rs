@@ -2,39 +2,64 @@
 //! one sum tree per primitive, so push and grasp batches are drawn from their own experience
 //! at their own priorities.
 
-use experience::{BatchItem, Key, Transition};
+use experience::{BatchItem, Key};
 use rand::{Rng, RngExt};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{ConfigError, Primitive};
 
 use crate::config::BufferConfig;
 use crate::error::ReplayError;
+use crate::observation::StoredTransition;
 use crate::sum_tree::SumTree;
 
 /// A batch of one primitive, drawn with replacement.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Batch<'a> {
-    pub items: Vec<BatchItem<&'a Transition>>,
+    pub items: Vec<BatchItem<&'a StoredTransition>>,
     /// Each item's P(i) = p_i^alpha / sum_k p_k^alpha at the time of sampling.
     pub probabilities: Vec<f64>,
     /// The beta the weights were computed with.
     pub beta: f64,
 }
 
+impl Batch<'_> {
+    /// The items with their observations decompressed (in parallel), as the learner needs
+    /// them; a damaged observation is an error naming its item.
+    pub fn unpack(&self) -> Result<Vec<BatchItem>, ReplayError> {
+        self.items
+            .par_iter()
+            .map(|item| {
+                let obs = item
+                    .transition
+                    .obs
+                    .unpack()
+                    .map_err(|why| ReplayError::Corrupt { key: item.key, why })?;
+                Ok(BatchItem {
+                    key: item.key,
+                    weight: item.weight,
+                    transition: item.transition.clone().with_obs(obs),
+                })
+            })
+            .collect()
+    }
+}
+
 /// Fixed-capacity storage of one primitive: a ring of transitions and the sum tree of their
-/// priorities raised to alpha.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-struct Ring {
-    items: Vec<Transition>,
+/// priorities raised to alpha. Snapshots write each shared observation once
+/// ([`crate::snapshot`]).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Ring {
+    pub(crate) items: Vec<StoredTransition>,
     /// The generation of the item in each slot.
-    generations: Vec<u64>,
+    pub(crate) generations: Vec<u64>,
     /// The priority of each slot after the epsilon floor (the tree holds it raised to alpha).
-    priorities: Vec<f64>,
-    tree: SumTree,
+    pub(crate) priorities: Vec<f64>,
+    pub(crate) tree: SumTree,
     /// Inserts so far: the next item's generation, and (mod capacity) its slot.
-    inserted: u64,
+    pub(crate) inserted: u64,
     /// The largest priority given so far (before alpha), for items inserted without one.
-    max_priority: f64,
+    pub(crate) max_priority: f64,
 }
 
 impl Ring {
@@ -175,7 +200,7 @@ impl PrioritizedReplay {
     }
 
     /// The stored transition a key names, while it is still there.
-    pub fn get(&self, key: &Key) -> Option<&Transition> {
+    pub fn get(&self, key: &Key) -> Option<&StoredTransition> {
         let ring = self.ring(key.primitive);
         ring.live_slot(key).map(|slot| &ring.items[slot])
     }
@@ -185,7 +210,7 @@ impl PrioritizedReplay {
     /// given so far. Priorities below epsilon are raised to it.
     pub fn insert(
         &mut self,
-        transition: Transition,
+        transition: StoredTransition,
         priority: Option<f64>,
     ) -> Result<Key, ReplayError> {
         if let Some(p) = priority {
@@ -298,6 +323,12 @@ impl PrioritizedReplay {
             probabilities,
             beta,
         })
+    }
+
+    /// Checks every stored observation's bytes against its hash (a snapshot just read).
+    pub(crate) fn check_observations(&self) -> Result<(), String> {
+        crate::snapshot::check_ring_observations(&self.push, Primitive::Push)?;
+        crate::snapshot::check_ring_observations(&self.grasp, Primitive::Grasp)
     }
 
     /// Checks the invariants a snapshot must satisfy against the config it carries.

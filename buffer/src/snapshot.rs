@@ -2,34 +2,47 @@
 //! limiter, open episodes) in one file, written atomically and checked when read.
 //!
 //! Layout: 8 bytes of magic, the format version (u32), the payload's length (u64) and its
-//! FNV-1a 64 hash (u64), all little-endian, then the payload (postcard). The hash turns a
-//! flipped byte into a clear error instead of a plausible but wrong buffer.
+//! xxh3 hash (u64), all little-endian, then the payload (postcard). A ring writes each packed
+//! observation once, as it lies in memory (compressed, with its own hash), and its items name
+//! theirs by index, so relabelled copies share it again when read. The hashes turn a flipped
+//! byte into a clear error instead of a plausible but wrong buffer: the observation's own
+//! names the damaged record, the payload's the rest.
 
+use std::collections::HashMap;
 use std::fs::{self, File};
-use std::hash::Hasher;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use experience::Transition;
+use serde::de::Error as _;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use sim::Primitive;
+use xxhash_rust::xxh3::Xxh3;
 
 use crate::error::{SnapshotError, SnapshotErrorKind};
+use crate::observation::PackedObservation;
+use crate::replay::Ring;
 use crate::store::ReplayBuffer;
+use crate::sum_tree::SumTree;
 
 const MAGIC: &[u8; 8] = b"PGREPLAY";
 /// Bump when the payload's layout changes.
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 const HEADER: usize = 8 + 4 + 8 + 8;
 
 /// Counts and hashes what passes through, so the payload streams to disk without a copy.
 struct Hashing<W> {
     inner: W,
     len: u64,
-    hash: fnv::FnvHasher,
+    hash: Xxh3,
 }
 
 impl<W: Write> Write for Hashing<W> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         let n = self.inner.write(buf)?;
         self.len += n as u64;
-        self.hash.write(&buf[..n]);
+        self.hash.update(&buf[..n]);
         Ok(n)
     }
 
@@ -53,10 +66,10 @@ impl ReplayBuffer {
             let mut hashing = Hashing {
                 inner: file,
                 len: 0,
-                hash: fnv::FnvHasher::default(),
+                hash: Xxh3::new(),
             };
             postcard::to_io(self, &mut hashing)?;
-            let (len, hash) = (hashing.len, hashing.hash.finish());
+            let (len, hash) = (hashing.len, hashing.hash.digest());
             let mut file = hashing.inner.into_inner().map_err(|e| e.into_error())?;
             file.seek(SeekFrom::Start(0))?;
             file.write_all(&header(len, hash))?;
@@ -130,12 +143,115 @@ fn read(path: &Path) -> Result<ReplayBuffer, SnapshotErrorKind> {
             expected: HEADER as u64 + len,
         });
     }
-    let mut fnv = fnv::FnvHasher::default();
-    fnv.write(payload);
-    if fnv.finish() != hash {
+    let intact = || xxhash_rust::xxh3::xxh3_64(payload) == hash;
+    // Decoded before the payload's hash is checked, so that a damaged observation is named
+    // by its own hash; a payload that does not decode is reported as damaged when it is.
+    let buffer: ReplayBuffer = match postcard::from_bytes(payload) {
+        Ok(buffer) => buffer,
+        Err(_) if !intact() => return Err(SnapshotErrorKind::Checksum),
+        Err(e) => return Err(e.into()),
+    };
+    buffer
+        .replay()
+        .check_observations()
+        .map_err(SnapshotErrorKind::Invalid)?;
+    if !intact() {
         return Err(SnapshotErrorKind::Checksum);
     }
-    let buffer: ReplayBuffer = postcard::from_bytes(payload)?;
     buffer.check().map_err(SnapshotErrorKind::Invalid)?;
     Ok(buffer)
+}
+
+/// A ring as a snapshot writes it.
+#[derive(Serialize)]
+struct RingOut<'a> {
+    observations: Vec<&'a PackedObservation>,
+    /// Each item with the index of its observation.
+    items: Vec<Transition<u32>>,
+    generations: &'a [u64],
+    priorities: &'a [f64],
+    tree: &'a SumTree,
+    inserted: u64,
+    max_priority: f64,
+}
+
+/// A ring as a snapshot reads it.
+#[derive(Deserialize)]
+struct RingIn {
+    observations: Vec<PackedObservation>,
+    items: Vec<Transition<u32>>,
+    generations: Vec<u64>,
+    priorities: Vec<f64>,
+    tree: SumTree,
+    inserted: u64,
+    max_priority: f64,
+}
+
+impl Serialize for Ring {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut index = HashMap::new();
+        let mut observations = Vec::new();
+        let items = self
+            .items
+            .iter()
+            .map(|item| {
+                let i = *index.entry(Arc::as_ptr(&item.obs)).or_insert_with(|| {
+                    observations.push(&*item.obs);
+                    observations.len() as u32 - 1
+                });
+                item.clone().with_obs(i)
+            })
+            .collect();
+        RingOut {
+            observations,
+            items,
+            generations: &self.generations,
+            priorities: &self.priorities,
+            tree: &self.tree,
+            inserted: self.inserted,
+            max_priority: self.max_priority,
+        }
+        .serialize(serializer)
+    }
+}
+
+impl<'de> Deserialize<'de> for Ring {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let ring = RingIn::deserialize(deserializer)?;
+        let observations: Vec<_> = ring.observations.into_iter().map(Arc::new).collect();
+        let items = ring
+            .items
+            .into_iter()
+            .map(|item| {
+                let obs = observations.get(item.obs as usize).ok_or_else(|| {
+                    D::Error::custom(format!(
+                        "an item names observation {} of {}",
+                        item.obs,
+                        observations.len()
+                    ))
+                })?;
+                Ok(item.with_obs(Arc::clone(obs)))
+            })
+            .collect::<Result<_, D::Error>>()?;
+        Ok(Ring {
+            items,
+            generations: ring.generations,
+            priorities: ring.priorities,
+            tree: ring.tree,
+            inserted: ring.inserted,
+            max_priority: ring.max_priority,
+        })
+    }
+}
+
+/// The first damaged observation of `ring`, named by its slot.
+pub(crate) fn check_ring_observations(ring: &Ring, primitive: Primitive) -> Result<(), String> {
+    ring.items.iter().enumerate().try_for_each(|(slot, item)| {
+        item.obs.check().map_err(|why| {
+            format!(
+                "the {primitive:?} ring's observation at slot {slot} (episode {}, step {}): {why}",
+                item.episode, item.step
+            )
+        })
+    })
 }

@@ -2,10 +2,12 @@
 //! annealing, stale updates, separate storage, relabelling, the rate limit and snapshots.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
+use buffer::observation::store;
 use buffer::{
     AssembleError, BufferConfig, EpisodeAssembler, PrioritizedReplay, ReplayBuffer, ReplayError,
-    Serving, SnapshotErrorKind,
+    Serving, SnapshotErrorKind, StoredTransition,
 };
 use experience::{Key, Transition};
 use policy::PushReward;
@@ -35,6 +37,11 @@ fn step(episode: u64, step: u32, primitive: Primitive, goal: ObjectId) -> Transi
     }
 }
 
+/// A stored transition with its observation decompressed.
+fn unpacked(t: &StoredTransition) -> Transition {
+    t.clone().with_obs(t.obs.unpack().unwrap())
+}
+
 fn config(capacity: usize) -> BufferConfig {
     BufferConfig {
         capacity,
@@ -51,7 +58,7 @@ fn sampling_frequencies_are_proportional_to_priority_to_the_alpha() {
         .enumerate()
         .map(|(i, p)| {
             replay
-                .insert(step(i as u64, 0, Primitive::Grasp, 1), Some(*p))
+                .insert(store(step(i as u64, 0, Primitive::Grasp, 1)), Some(*p))
                 .unwrap()
         })
         .collect();
@@ -105,10 +112,10 @@ fn importance_weights_follow_the_formula_on_a_hand_case() {
     };
     let mut replay = PrioritizedReplay::new(&cfg).unwrap();
     let a = replay
-        .insert(step(0, 0, Primitive::Push, 1), Some(1.0))
+        .insert(store(step(0, 0, Primitive::Push, 1)), Some(1.0))
         .unwrap();
     let b = replay
-        .insert(step(1, 0, Primitive::Push, 1), Some(3.0))
+        .insert(store(step(1, 0, Primitive::Push, 1)), Some(3.0))
         .unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     // 64 strata over a total of 4: slot a owns the first 16, so both appear.
@@ -141,9 +148,11 @@ fn beta_anneals_linearly_to_one_over_sampled_items() {
     };
     let mut replay = PrioritizedReplay::new(&cfg).unwrap();
     replay
-        .insert(step(0, 0, Primitive::Grasp, 1), None)
+        .insert(store(step(0, 0, Primitive::Grasp, 1)), None)
         .unwrap();
-    replay.insert(step(1, 0, Primitive::Push, 1), None).unwrap();
+    replay
+        .insert(store(step(1, 0, Primitive::Push, 1)), None)
+        .unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     assert_eq!(replay.beta(), 0.4);
     let batch = replay.sample(Primitive::Grasp, 50, &mut rng).unwrap();
@@ -161,13 +170,13 @@ fn beta_anneals_linearly_to_one_over_sampled_items() {
 fn an_update_for_an_overwritten_slot_is_ignored() {
     let mut replay = PrioritizedReplay::new(&config(2)).unwrap();
     let old = replay
-        .insert(step(0, 0, Primitive::Grasp, 1), Some(1.0))
+        .insert(store(step(0, 0, Primitive::Grasp, 1)), Some(1.0))
         .unwrap();
     let kept = replay
-        .insert(step(1, 0, Primitive::Grasp, 1), Some(1.0))
+        .insert(store(step(1, 0, Primitive::Grasp, 1)), Some(1.0))
         .unwrap();
     let new = replay
-        .insert(step(2, 0, Primitive::Grasp, 1), Some(2.0))
+        .insert(store(step(2, 0, Primitive::Grasp, 1)), Some(2.0))
         .unwrap();
     assert_eq!(old.slot, new.slot, "the third insert reuses the first slot");
     assert_ne!(old.generation, new.generation);
@@ -196,17 +205,21 @@ fn an_update_for_an_overwritten_slot_is_ignored() {
 #[test]
 fn new_items_without_a_priority_get_the_largest_so_far() {
     let mut replay = PrioritizedReplay::new(&config(4)).unwrap();
-    let first = replay.insert(step(0, 0, Primitive::Push, 1), None).unwrap();
+    let first = replay
+        .insert(store(step(0, 0, Primitive::Push, 1)), None)
+        .unwrap();
     assert_eq!(
         replay.priority(&first),
         Some(1.0),
         "the maximum starts at 1"
     );
     let big = replay
-        .insert(step(1, 0, Primitive::Push, 1), Some(4.0))
+        .insert(store(step(1, 0, Primitive::Push, 1)), Some(4.0))
         .unwrap();
     replay.update_priority(&big, 0.0).unwrap();
-    let next = replay.insert(step(2, 0, Primitive::Push, 1), None).unwrap();
+    let next = replay
+        .insert(store(step(2, 0, Primitive::Push, 1)), None)
+        .unwrap();
     assert_eq!(replay.priority(&next), Some(4.0));
     assert_eq!(
         replay.priority(&big),
@@ -218,7 +231,7 @@ fn new_items_without_a_priority_get_the_largest_so_far() {
 fn push_and_grasp_storage_are_separate() {
     let mut replay = PrioritizedReplay::new(&config(3)).unwrap();
     let grasp = replay
-        .insert(step(0, 0, Primitive::Grasp, 1), Some(1.0))
+        .insert(store(step(0, 0, Primitive::Grasp, 1)), Some(1.0))
         .unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     assert_eq!(
@@ -228,7 +241,7 @@ fn push_and_grasp_storage_are_separate() {
     // Ten pushes overrun the push ring but never the grasp one.
     for i in 0..10 {
         replay
-            .insert(step(i + 1, 0, Primitive::Push, 1), Some(1.0))
+            .insert(store(step(i + 1, 0, Primitive::Push, 1)), Some(1.0))
             .unwrap();
     }
     assert_eq!(replay.len(Primitive::Push), 3);
@@ -312,7 +325,11 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
     let ready = assembler.end(4, Some(9), DENSE).unwrap();
     assert_eq!(ready.len(), 4 + 3);
     for (i, r) in ready[..4].iter().enumerate() {
-        assert_eq!(r.transition, originals[i], "originals are stored unchanged");
+        assert_eq!(
+            unpacked(&r.transition),
+            originals[i],
+            "originals are stored unchanged"
+        );
         assert_eq!(r.priority, Some(i as f64));
         assert!(!r.relabelled);
     }
@@ -330,10 +347,18 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
         reward: 0.5,
         ..originals[1].clone()
     };
-    assert_eq!(copies[0].transition, expected_push);
+    assert_eq!(unpacked(&copies[0].transition), expected_push);
+    // A copy shares its original's packed observation: no bytes are stored twice.
+    assert!(Arc::ptr_eq(
+        &copies[0].transition.obs,
+        &ready[1].transition.obs
+    ));
+    assert!(Arc::ptr_eq(
+        &copies[2].transition.obs,
+        &ready[3].transition.obs
+    ));
     assert_eq!(
-        copies[0]
-            .transition
+        unpacked(&copies[0].transition)
             .goal_mask()
             .iter()
             .filter(|m| **m)
@@ -630,4 +655,58 @@ fn a_truncated_or_corrupted_snapshot_is_refused_naming_the_file() {
     let err = ReplayBuffer::load(&path).unwrap_err();
     assert!(matches!(err.kind, SnapshotErrorKind::Io(_)), "{err}");
     assert!(err.to_string().contains("damaged.snap"), "{err}");
+}
+
+/// A buffer holding one relabelled episode, and the keys of its originals and copies.
+fn relabelled_buffer() -> (ReplayBuffer, Vec<Key>) {
+    let mut buffer = ReplayBuffer::new(config(16), serving_both()).unwrap();
+    for t in non_goal_episode(0) {
+        buffer.add_step(t, None).unwrap();
+    }
+    let keys = buffer.end_episode(0, Some(9)).unwrap();
+    (buffer, keys)
+}
+
+#[test]
+fn relabelled_copies_share_their_observation_through_a_snapshot() {
+    let (buffer, keys) = relabelled_buffer();
+    // Steps 0..4, then the copies of steps 1, 2 and 3.
+    assert_eq!(keys.len(), 7);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("shared.snap");
+    buffer.save(&path).unwrap();
+    let restored = ReplayBuffer::load(&path).unwrap();
+    assert_eq!(restored, buffer);
+    let obs = |key: &Key| &restored.replay().get(key).unwrap().obs;
+    for (copy, original) in [(4, 1), (5, 2), (6, 3)] {
+        assert!(Arc::ptr_eq(obs(&keys[copy]), obs(&keys[original])));
+        assert_eq!(
+            unpacked(restored.replay().get(&keys[copy]).unwrap()).obs,
+            non_goal_episode(0)[original].obs,
+            "bit for bit after compression and a snapshot"
+        );
+    }
+    assert!(!Arc::ptr_eq(obs(&keys[1]), obs(&keys[2])));
+}
+
+#[test]
+fn a_damaged_observation_in_a_snapshot_is_named() {
+    let (buffer, keys) = relabelled_buffer();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("record.snap");
+    buffer.save(&path).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let record = buffer.replay().get(&keys[1]).unwrap().obs.compressed();
+    let at = bytes
+        .windows(record.len())
+        .position(|w| w == record)
+        .expect("the snapshot holds the compressed bytes as they are");
+    bytes[at + record.len() / 2] ^= 0x01;
+    std::fs::write(&path, &bytes).unwrap();
+    let err = ReplayBuffer::load(&path).unwrap_err().to_string();
+    assert!(err.contains("record.snap"), "{err}");
+    assert!(
+        err.contains("Push ring's observation at slot 1 (episode 0, step 1)"),
+        "{err}"
+    );
 }

@@ -16,22 +16,11 @@ pub struct Key {
 }
 
 /// One sampled transition with what the learner needs to weigh it and update its priority:
-/// the replay lends `&Transition`s, a message carries them owned.
+/// the replay lends its stored transitions, a message carries them owned and unpacked.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BatchItem<T = Transition> {
     pub key: Key,
     /// The importance-sampling weight (N P(i))^-beta divided by the batch's largest.
     pub weight: f32,
     pub transition: T,
-}
-
-impl BatchItem<&Transition> {
-    /// The item with its own copy of the transition.
-    pub fn cloned(&self) -> BatchItem {
-        BatchItem {
-            key: self.key,
-            weight: self.weight,
-            transition: self.transition.clone(),
-        }
-    }
 }

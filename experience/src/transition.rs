@@ -4,12 +4,14 @@
 use serde::{Deserialize, Serialize};
 use sim::{Action, Heightmaps, ObjectId, Primitive};
 
-/// A step of an episode as the buffer keeps it.
+/// A step of an episode as the roles exchange it.
 ///
 /// The goal mask is not stored: it is `obs.goal_mask(goal)`, derived from the stored id map,
-/// so a relabelled copy needs only a different `goal`.
+/// so a relabelled copy needs only a different `goal`. `O` is the observation's form: the
+/// heightmaps themselves, or what the buffer keeps of them (compressed, shared by the
+/// relabelled copies of one step).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Transition {
+pub struct Transition<O = Heightmaps> {
     /// The episode, unique across every actor of a run (the wiring combines actor and
     /// episode counter); steps of one episode are assembled and relabelled together.
     pub episode: u64,
@@ -18,7 +20,7 @@ pub struct Transition {
     /// The goal this copy is stored for.
     pub goal: ObjectId,
     /// The observation the action was chosen on.
-    pub obs: Heightmaps,
+    pub obs: O,
     pub action: Action,
     /// The reward for `goal`.
     pub reward: f32,
@@ -29,7 +31,7 @@ pub struct Transition {
     pub next_value: Option<f32>,
 }
 
-impl Transition {
+impl<O> Transition<O> {
     /// Push or grasp: which storage the step belongs to.
     pub fn primitive(&self) -> Primitive {
         self.action.primitive
@@ -40,6 +42,22 @@ impl Transition {
         self.grasped == Some(self.goal)
     }
 
+    /// The same step with its observation in another form.
+    pub fn with_obs<P>(self, obs: P) -> Transition<P> {
+        Transition {
+            episode: self.episode,
+            step: self.step,
+            goal: self.goal,
+            obs,
+            action: self.action,
+            reward: self.reward,
+            grasped: self.grasped,
+            next_value: self.next_value,
+        }
+    }
+}
+
+impl Transition {
     /// The goal mask the learner feeds the nets: the goal's pixels in the stored id map.
     pub fn goal_mask(&self) -> Vec<bool> {
         self.obs.goal_mask(self.goal)

@@ -20,10 +20,26 @@ pub const REFERENCE_PIXEL_SIZE: f32 = 0.002;
 ///
 /// A pixel's world point is its centre (the original uses its corner, half a pixel away; the
 /// centre keeps the camera and the primitives exactly consistent).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(try_from = "f32", into = "f32")]
 pub struct PixelGrid {
     pixel_size: f32,
     side: usize,
+}
+
+/// A grid is written as its pixel size.
+impl From<PixelGrid> for f32 {
+    fn from(grid: PixelGrid) -> f32 {
+        grid.pixel_size
+    }
+}
+
+impl TryFrom<f32> for PixelGrid {
+    type Error = SimError;
+
+    fn try_from(pixel_size: f32) -> Result<Self, SimError> {
+        Self::new(pixel_size)
+    }
 }
 
 impl PixelGrid {

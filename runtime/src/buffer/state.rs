@@ -255,7 +255,7 @@ impl BufferRole {
             Vec::new()
         } else {
             let batch = self.replay.sample(request.primitive, size, &mut self.rng)?;
-            batch.items.iter().map(|item| item.cloned()).collect()
+            batch.unpack()?
         };
         self.requests.pop_front();
         batches.send(&Message::Batch(BatchMessage {

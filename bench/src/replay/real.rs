@@ -1,0 +1,276 @@
+//! `pushgrasp bench buffer` on real steps: heightmaps of settled scenes the simulator renders
+//! (1 to 10 blocks, as an episode clears them), stored the way the buffer role stores them.
+//!
+//! Each resolution runs in a process of its own, so that its peak resident memory is the
+//! buffer's alone: the replay is filled through the buffer's own insert path (episodes of
+//! grasps assembled, their observations compressed in parallel, stored), then learner steps
+//! at the learner's batch size are timed (sample, decompress the batch, update its priorities)
+//! beside the same sampling with each item's raw transition cloned (how the buffer served
+//! batches when it kept observations raw); then a snapshot is written, the buffer dropped, and
+//! the snapshot read back. Before that, the codecs the buffer could use are compared on the
+//! same observations' planes.
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use buffer::observation::planes;
+use buffer::{BufferConfig, ReplayBuffer, Serving};
+use experience::{Key, Transition};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::{Map, Value};
+use sim::{Action, Heightmaps, Primitive, SimConfig};
+
+use super::status_mb;
+use crate::{median, rendered_scene, timed};
+
+/// The learner's batch size (the stage configs').
+const LEARNER_BATCH: usize = 4;
+/// Distinct scenes rendered; the stored steps cycle through them.
+const SCENES: usize = 48;
+/// Steps per assembled episode.
+const EPISODE: usize = 16;
+const LEARNER_STEPS: usize = 2000;
+
+/// The resolutions measured and log2 of the steps stored at each: 2^20 of 112² fit this
+/// machine's memory compressed; 224² steps are four times larger.
+pub(super) const SIDES: [(usize, u32); 2] = [(112, 20), (224, 17)];
+
+/// Every figure at one resolution, named with its suffix (`_112`, `_real_2p20`).
+pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> {
+    let config = SimConfig::with_pixel_size(sim::workspace::SIDE / side as f32);
+    let scenes = (0..SCENES)
+        .map(|i| rendered_scene(&config, 1 + i % 10, i as u64))
+        .collect::<Result<Vec<_>>>()?;
+    let mut figures = Map::new();
+    let mut put = |name: String, value: f64| {
+        let rounded = if value >= 100.0 {
+            value.round()
+        } else {
+            (value * 100.0).round() / 100.0
+        };
+        figures.insert(name, rounded.into());
+    };
+    let raw = scenes[0].grid.len() * 8;
+    put(format!("raw_bytes_per_step_{side}"), raw as f64);
+    for codec in &CODECS {
+        let (bytes, encode_us, decode_us) = codec_costs(codec, &scenes);
+        put(format!("{}_bytes_per_step_{side}", codec.name), bytes);
+        put(format!("{}_encode_us_{side}", codec.name), encode_us);
+        put(format!("{}_decode_us_{side}", codec.name), decode_us);
+    }
+
+    let steps = 1usize << exponent;
+    let suffix = format!("real_2p{exponent}_{side}");
+    let mut buffer = ReplayBuffer::new(
+        BufferConfig {
+            capacity: steps,
+            min_size_to_sample: 0,
+            ..BufferConfig::default()
+        },
+        Serving {
+            push_reward: policy::PushReward::Change,
+            sampled: vec![Primitive::Grasp],
+        },
+    )?;
+    let mut keys = Vec::with_capacity(steps);
+    let mut fill_s = 0.0;
+    for episode in 0..(steps / EPISODE) as u64 {
+        let transitions: Vec<Transition> = (0..EPISODE)
+            .map(|step| grasp(episode, step, &scenes))
+            .collect();
+        let (stored, time) = timed(|| -> Result<Vec<Key>> {
+            for t in transitions {
+                buffer.add_step(t, Some(1.0))?;
+            }
+            Ok(buffer.end_episode(episode, Some(1))?)
+        });
+        keys.extend(stored?);
+        fill_s += time.as_secs_f64();
+    }
+    anyhow::ensure!(keys.len() == steps, "the fill stored {} steps", keys.len());
+    let stored = stored_bytes(&buffer, &keys);
+    put(format!("stored_bytes_per_step_{side}"), stored);
+    put(format!("compression_ratio_{side}"), raw as f64 / stored);
+    put(
+        format!("insert_real_steps_per_s_{side}"),
+        steps as f64 / fill_s,
+    );
+    if let Some(rss) = status_mb("VmRSS:") {
+        put(format!("rss_mb_{suffix}"), rss);
+    }
+
+    let [packed, raw_clone] = learner_steps(&mut buffer, &scenes)?;
+    put(format!("learner_steps_per_s_{suffix}"), packed);
+    put(
+        format!("learner_steps_per_s_raw_clone_2p{exponent}_{side}"),
+        raw_clone,
+    );
+
+    let dir = tempfile::tempdir()?;
+    let path = dir.path().join("replay.snap");
+    let (saved, time) = timed(|| buffer.save(&path));
+    saved?;
+    put(format!("snapshot_s_{suffix}"), time.as_secs_f64());
+    put(
+        format!("snapshot_mb_{suffix}"),
+        std::fs::metadata(&path)?.len() as f64 / 1e6,
+    );
+    drop(buffer);
+    let (loaded, time) = timed(|| ReplayBuffer::load(&path));
+    let loaded = loaded?;
+    anyhow::ensure!(
+        loaded.stats().grasp_len == steps,
+        "the snapshot read back holds {} steps",
+        loaded.stats().grasp_len
+    );
+    put(format!("resume_s_{suffix}"), time.as_secs_f64());
+    if let Some(peak) = status_mb("VmHWM:") {
+        put(format!("peak_rss_mb_{suffix}"), peak);
+    }
+    Ok(figures)
+}
+
+/// Step `step` of a grasp-only episode; its last grasp picks the goal (no relabelled copies).
+fn grasp(episode: u64, step: usize, scenes: &[Heightmaps]) -> Transition {
+    let i = episode as usize * EPISODE + step;
+    let obs = scenes[i % scenes.len()].clone();
+    let side = obs.side();
+    let last = step + 1 == EPISODE;
+    Transition {
+        episode,
+        step: step as u32,
+        goal: 1,
+        obs,
+        action: Action {
+            primitive: Primitive::Grasp,
+            rotation: (i % 16) as u8,
+            row: (i / side) % side,
+            col: i % side,
+        },
+        reward: if last { 1.0 } else { 0.0 },
+        grasped: last.then_some(1),
+        next_value: (!last).then_some(0.5),
+    }
+}
+
+/// Mean compressed bytes per stored step.
+fn stored_bytes(buffer: &ReplayBuffer, keys: &[Key]) -> f64 {
+    let total: usize = keys
+        .iter()
+        .filter_map(|key| buffer.replay().get(key))
+        .map(|t| t.obs.compressed().len())
+        .sum();
+    total as f64 / keys.len() as f64
+}
+
+/// Learner steps/s, medians: [sample + decompress + update, sample + clone raw + update].
+fn learner_steps(buffer: &mut ReplayBuffer, scenes: &[Heightmaps]) -> Result<[f64; 2]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut timings = [Vec::new(), Vec::new()];
+    for i in 0..2 * LEARNER_STEPS {
+        let unpack = i % 2 == 0;
+        let start = Instant::now();
+        let batch = buffer.sample(Primitive::Grasp, LEARNER_BATCH, &mut rng)?;
+        let keys: Vec<Key> = batch.items.iter().map(|item| item.key).collect();
+        if unpack {
+            black_box(batch.unpack()?);
+        } else {
+            let raw: Vec<Transition> = batch
+                .items
+                .iter()
+                .map(|item| {
+                    let obs = scenes[item.key.slot as usize % scenes.len()].clone();
+                    item.transition.clone().with_obs(obs)
+                })
+                .collect();
+            black_box(raw);
+        }
+        let updates: Vec<(Key, f64)> = keys
+            .into_iter()
+            .map(|key| (key, 2.0 * rng.random::<f64>()))
+            .collect();
+        buffer.update_priorities(&updates)?;
+        timings[usize::from(!unpack)].push(start.elapsed().as_secs_f64());
+    }
+    Ok(timings.map(|t| 1.0 / median(t)))
+}
+
+/// A codec the buffer could store observations with.
+struct Codec {
+    name: &'static str,
+    encode: fn(&[u8]) -> Vec<u8>,
+    decode: fn(&[u8], usize) -> Vec<u8>,
+}
+
+const CODECS: [Codec; 4] = [
+    Codec {
+        name: "zstd1",
+        encode: |b| zstd::bulk::compress(b, 1).expect("zstd compresses"),
+        decode: |b, n| zstd::bulk::decompress(b, n).expect("zstd decodes its own"),
+    },
+    Codec {
+        name: "zstd3",
+        encode: |b| zstd::bulk::compress(b, 3).expect("zstd compresses"),
+        decode: |b, n| zstd::bulk::decompress(b, n).expect("zstd decodes its own"),
+    },
+    Codec {
+        name: "zstd9",
+        encode: |b| zstd::bulk::compress(b, 9).expect("zstd compresses"),
+        decode: |b, n| zstd::bulk::decompress(b, n).expect("zstd decodes its own"),
+    },
+    Codec {
+        name: "lz4",
+        encode: lz4_flex::block::compress,
+        decode: |b, n| lz4_flex::block::decompress(b, n).expect("lz4 decodes its own"),
+    },
+];
+
+/// Mean bytes per step, median encode and decode microseconds of one step's planes.
+fn codec_costs(codec: &Codec, scenes: &[Heightmaps]) -> (f64, f64, f64) {
+    let (mut bytes, mut encode, mut decode) = (0, Vec::new(), Vec::new());
+    for scene in scenes {
+        let planes = planes(scene);
+        let (packed, time) = timed(|| (codec.encode)(&planes));
+        encode.push(time.as_secs_f64() * 1e6);
+        let (back, time) = timed(|| (codec.decode)(&packed, planes.len()));
+        decode.push(time.as_secs_f64() * 1e6);
+        assert_eq!(back, planes, "{} round-trips", codec.name);
+        bytes += packed.len();
+    }
+    (
+        bytes as f64 / scenes.len() as f64,
+        median(encode),
+        median(decode),
+    )
+}
+
+/// Runs [`figures`] for each of [`SIDES`] in a child process (`--real-side`), each its own
+/// peak memory.
+pub(super) fn in_children(json_figures: &mut Map<String, Value>) -> Result<()> {
+    let exe = std::env::current_exe().context("finding this executable")?;
+    for (side, _) in SIDES {
+        let output = std::process::Command::new(&exe)
+            .args([
+                "bench",
+                "buffer",
+                "--json",
+                "--real-side",
+                &side.to_string(),
+            ])
+            .stderr(std::process::Stdio::inherit())
+            .output()
+            .context("running the real-step figures")?;
+        anyhow::ensure!(
+            output.status.success(),
+            "the real-step figures at {side} failed"
+        );
+        let line = String::from_utf8_lossy(&output.stdout);
+        let Value::Object(figures) = serde_json::from_str(line.trim())? else {
+            anyhow::bail!("the real-step figures at {side} are not a JSON object");
+        };
+        json_figures.extend(figures);
+    }
+    Ok(())
+}
