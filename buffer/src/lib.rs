@@ -21,7 +21,7 @@ pub mod sum_tree;
 
 pub use config::BufferConfig;
 pub use error::{AssembleError, ReplayError, SnapshotError, SnapshotErrorKind};
-pub use observation::{CorruptObservation, PackedObservation, SharedObservation, StoredTransition};
+pub use observation::{CorruptObservation, PackedObservation, StoredTransition};
 pub use rate_limit::RateLimiter;
 pub use relabel::{EpisodeAssembler, Pending, Ready};
 pub use replay::{Batch, PrioritizedReplay};

@@ -18,7 +18,6 @@
 //! shares its original's packed observation.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 
 use policy::{GRASP_REWARD, PushReward};
 use rayon::prelude::*;
@@ -136,7 +135,7 @@ impl EpisodeAssembler {
                 transition: Transition {
                     goal: copy.goal,
                     reward: copy.reward,
-                    obs: Arc::clone(&original.obs),
+                    obs: original.obs.clone(),
                     ..*original
                 },
                 priority: None,
@@ -160,7 +159,7 @@ impl EpisodeAssembler {
         steps
             .into_par_iter()
             .map(|p| {
-                let obs = Arc::new(PackedObservation::pack(&p.transition.obs));
+                let obs = PackedObservation::pack(&p.transition.obs);
                 Ready {
                     transition: p.transition.with_obs(obs),
                     priority: p.priority,

@@ -64,10 +64,12 @@ pub(crate) struct Ring {
 
 impl Ring {
     fn new(capacity: usize) -> Self {
+        // Reserved whole: the pages are taken only as slots fill, and a large ring never
+        // copies itself to grow (nor holds its old and new copies at once).
         Self {
-            items: Vec::new(),
-            generations: Vec::new(),
-            priorities: Vec::new(),
+            items: Vec::with_capacity(capacity),
+            generations: Vec::with_capacity(capacity),
+            priorities: Vec::with_capacity(capacity),
             tree: SumTree::new(capacity),
             inserted: 0,
             // Schaul et al. start at 1: new experience is seen at least once early on.
@@ -83,6 +85,32 @@ impl Ring {
     fn live_slot(&self, key: &Key) -> Option<usize> {
         let slot = key.slot as usize;
         (self.generations.get(slot) == Some(&key.generation)).then_some(slot)
+    }
+
+    /// Puts an item in the next slot (the oldest when full) with its priority floored at
+    /// `epsilon`, or the largest so far; returns the slot, its generation and the priority.
+    /// The caller sets the slot's weight in the tree.
+    fn put(
+        &mut self,
+        transition: StoredTransition,
+        priority: Option<f64>,
+        epsilon: f64,
+    ) -> (usize, u64, f64) {
+        let p = priority.unwrap_or(self.max_priority).max(epsilon);
+        self.max_priority = self.max_priority.max(p);
+        let generation = self.inserted;
+        let slot = (generation % self.capacity() as u64) as usize;
+        if slot == self.items.len() {
+            self.items.push(transition);
+            self.generations.push(generation);
+            self.priorities.push(p);
+        } else {
+            self.items[slot] = transition;
+            self.generations[slot] = generation;
+            self.priorities[slot] = p;
+        }
+        self.inserted += 1;
+        (slot, generation, p)
     }
 
     fn check(&self, capacity: usize) -> Result<(), String> {
@@ -213,31 +241,49 @@ impl PrioritizedReplay {
         transition: StoredTransition,
         priority: Option<f64>,
     ) -> Result<Key, ReplayError> {
-        if let Some(p) = priority {
-            check_priority(p)?;
+        let keys = self.insert_many(vec![(transition, priority)])?;
+        Ok(keys[0])
+    }
+
+    /// [`insert`](Self::insert) for many transitions, in order, their keys in the same
+    /// order; none is stored when a priority is bad. The sums above each run of
+    /// consecutive slots are updated once ([`SumTree::set_many`]), which makes a batch of
+    /// inserts several times faster than as many single ones.
+    pub fn insert_many(
+        &mut self,
+        items: Vec<(StoredTransition, Option<f64>)>,
+    ) -> Result<Vec<Key>, ReplayError> {
+        for (_, priority) in &items {
+            if let Some(p) = priority {
+                check_priority(*p)?;
+            }
         }
         let (alpha, epsilon) = (self.alpha, self.epsilon);
-        let ring = self.ring_mut(transition.primitive());
-        let p = priority.unwrap_or(ring.max_priority).max(epsilon);
-        ring.max_priority = ring.max_priority.max(p);
-        let generation = ring.inserted;
-        let slot = (generation % ring.capacity() as u64) as usize;
-        if slot == ring.items.len() {
-            ring.items.push(transition);
-            ring.generations.push(generation);
-            ring.priorities.push(p);
-        } else {
-            ring.items[slot] = transition;
-            ring.generations[slot] = generation;
-            ring.priorities[slot] = p;
+        let mut keys = Vec::with_capacity(items.len());
+        // Per primitive, the first slot of the run not yet in the tree and its weights.
+        let mut runs: [(usize, Vec<f64>); 2] = Default::default();
+        for (transition, priority) in items {
+            let primitive = transition.primitive();
+            let ring = self.ring_mut(primitive);
+            let (slot, generation, p) = ring.put(transition, priority, epsilon);
+            let (start, weights) = &mut runs[primitive as usize];
+            if *start + weights.len() != slot {
+                ring.tree.set_many(*start, weights);
+                (*start, *weights) = (slot, Vec::new());
+            }
+            weights.push(p.powf(alpha));
+            keys.push(Key {
+                primitive,
+                slot: slot as u32,
+                generation,
+            });
         }
-        ring.tree.set(slot, p.powf(alpha));
-        ring.inserted += 1;
-        Ok(Key {
-            primitive: ring.items[slot].primitive(),
-            slot: slot as u32,
-            generation,
-        })
+        for (primitive, (start, weights)) in
+            [Primitive::Push, Primitive::Grasp].into_iter().zip(runs)
+        {
+            self.ring_mut(primitive).tree.set_many(start, &weights);
+        }
+        Ok(keys)
     }
 
     /// Sets the priority of the item `key` names (floored at epsilon); returns false, and

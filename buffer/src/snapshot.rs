@@ -12,7 +12,6 @@ use std::collections::HashMap;
 use std::fs::{self, File};
 use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use experience::Transition;
 use serde::de::Error as _;
@@ -195,8 +194,8 @@ impl Serialize for Ring {
             .items
             .iter()
             .map(|item| {
-                let i = *index.entry(Arc::as_ptr(&item.obs)).or_insert_with(|| {
-                    observations.push(&*item.obs);
+                let i = *index.entry(item.obs.address()).or_insert_with(|| {
+                    observations.push(&item.obs);
                     observations.len() as u32 - 1
                 });
                 item.clone().with_obs(i)
@@ -218,7 +217,7 @@ impl Serialize for Ring {
 impl<'de> Deserialize<'de> for Ring {
     fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         let ring = RingIn::deserialize(deserializer)?;
-        let observations: Vec<_> = ring.observations.into_iter().map(Arc::new).collect();
+        let observations = ring.observations;
         let items = ring
             .items
             .into_iter()
@@ -230,7 +229,7 @@ impl<'de> Deserialize<'de> for Ring {
                         observations.len()
                     ))
                 })?;
-                Ok(item.with_obs(Arc::clone(obs)))
+                Ok(item.with_obs(obs.clone()))
             })
             .collect::<Result<_, D::Error>>()?;
         Ok(Ring {

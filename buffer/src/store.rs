@@ -105,21 +105,23 @@ impl ReplayBuffer {
     }
 
     fn store(&mut self, ready: Vec<Ready>) -> Vec<Key> {
-        ready
-            .into_iter()
-            .map(|r| {
-                let primitive = r.transition.primitive();
-                if self.serving.sampled.contains(&primitive) {
-                    if self.replay.len(primitive) == self.replay.capacity() {
-                        self.limiter.on_delete(1);
-                    }
-                    self.limiter.on_insert(1);
+        let mut lens = [Primitive::Push, Primitive::Grasp].map(|p| self.replay.len(p));
+        for r in &ready {
+            let primitive = r.transition.primitive();
+            if self.serving.sampled.contains(&primitive) {
+                let len = &mut lens[primitive as usize];
+                if *len == self.replay.capacity() {
+                    self.limiter.on_delete(1);
+                } else {
+                    *len += 1;
                 }
-                self.replay
-                    .insert(r.transition, r.priority)
-                    .expect("priorities were checked when the step arrived")
-            })
-            .collect()
+                self.limiter.on_insert(1);
+            }
+        }
+        let items = ready.into_iter().map(|r| (r.transition, r.priority));
+        self.replay
+            .insert_many(items.collect())
+            .expect("priorities were checked when the step arrived")
     }
 
     /// Whether `n` more items may be inserted without outrunning the learner.

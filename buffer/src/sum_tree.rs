@@ -118,21 +118,44 @@ impl SumTree {
     /// If `slot >= capacity` or `weight` is negative or not finite (either would corrupt
     /// every sum above it).
     pub fn set(&mut self, slot: usize, weight: f64) {
-        assert!(slot < self.capacity, "slot {slot} out of {}", self.capacity);
-        assert!(
-            weight.is_finite() && weight >= 0.0,
-            "sum tree weight {weight} is not a finite non-negative number"
-        );
-        // Recompute each sum from its children rather than adding a delta, so rounding
-        // errors never accumulate over millions of updates.
-        let (mut entry, mut value) = (slot, weight);
-        for level in &mut self.levels {
-            let group = &mut level[entry / FANOUT];
-            group.0[entry % FANOUT] = value;
-            value = group.sum();
-            entry /= FANOUT;
+        self.set_many(slot, &[weight]);
+    }
+
+    /// Sets the weights of the consecutive slots from `start`, then the sums above them a
+    /// level at a time, each group touched once: a batch of inserts costs about one pass
+    /// over its slots, not a walk up the tree for each.
+    ///
+    /// # Panics
+    /// If a slot is past the capacity or a weight is negative or not finite.
+    pub fn set_many(&mut self, start: usize, weights: &[f64]) {
+        if weights.is_empty() {
+            return;
         }
-        self.total = value;
+        let last = start + weights.len() - 1;
+        assert!(last < self.capacity, "slot {last} out of {}", self.capacity);
+        for (slot, &weight) in (start..).zip(weights) {
+            assert!(
+                weight.is_finite() && weight >= 0.0,
+                "sum tree weight {weight} is not a finite non-negative number"
+            );
+            self.levels[0][slot / FANOUT].0[slot % FANOUT] = weight;
+        }
+        self.resum(start, last);
+    }
+
+    /// Recomputes the sums above the weights of slots `first..=last` from their children
+    /// (never by adding a delta, so rounding errors cannot accumulate over millions of
+    /// updates), and the total.
+    fn resum(&mut self, first: usize, last: usize) {
+        let (mut lo, mut hi) = (first / FANOUT, last / FANOUT);
+        for k in 1..self.levels.len() {
+            let (below, above) = self.levels.split_at_mut(k);
+            for g in lo..=hi {
+                above[0][g / FANOUT].0[g % FANOUT] = below[k - 1][g].sum();
+            }
+            (lo, hi) = (lo / FANOUT, hi / FANOUT);
+        }
+        self.total = self.levels.last().expect("a tree has a level")[0].sum();
     }
 
     /// The slot where the running sum of weights (in slot order) first exceeds `prefix`:
@@ -212,16 +235,7 @@ impl TryFrom<Vec<f64>> for SumTree {
             ));
         }
         let mut tree = SumTree::new(weights.len());
-        for (slot, &w) in weights.iter().enumerate() {
-            tree.levels[0][slot / FANOUT].0[slot % FANOUT] = w;
-        }
-        for k in 1..tree.levels.len() {
-            let (below, above) = tree.levels.split_at_mut(k);
-            for (g, group) in below[k - 1].iter().enumerate() {
-                above[0][g / FANOUT].0[g % FANOUT] = group.sum();
-            }
-        }
-        tree.total = tree.levels.last().expect("a tree has a level")[0].sum();
+        tree.set_many(0, &weights);
         Ok(tree)
     }
 }
@@ -360,6 +374,24 @@ mod tests {
         assert_eq!(rebuilt, tree);
         let naive: f64 = weights.iter().sum();
         assert!((tree.total() - naive).abs() <= 1e-9 * naive);
+    }
+
+    #[test]
+    fn setting_runs_of_slots_is_setting_them_one_by_one() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for capacity in [1, 7, 8, 9, 64, 65, 1000] {
+            let (mut many, mut one) = (SumTree::new(capacity), SumTree::new(capacity));
+            for _ in 0..200 {
+                let start = rng.random_range(0..capacity);
+                let len = rng.random_range(0..=capacity - start);
+                let weights: Vec<f64> = (0..len).map(|_| rng.random_range(0.0..4.0)).collect();
+                many.set_many(start, &weights);
+                for (slot, &w) in (start..).zip(&weights) {
+                    one.set(slot, w);
+                }
+                assert_eq!(many, one, "capacity {capacity}, {len} slots from {start}");
+            }
+        }
     }
 
     #[test]

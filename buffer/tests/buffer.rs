@@ -2,7 +2,6 @@
 //! annealing, stale updates, separate storage, relabelling, the rate limit and snapshots.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use buffer::observation::store;
 use buffer::{
@@ -349,14 +348,8 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
     };
     assert_eq!(unpacked(&copies[0].transition), expected_push);
     // A copy shares its original's packed observation: no bytes are stored twice.
-    assert!(Arc::ptr_eq(
-        &copies[0].transition.obs,
-        &ready[1].transition.obs
-    ));
-    assert!(Arc::ptr_eq(
-        &copies[2].transition.obs,
-        &ready[3].transition.obs
-    ));
+    assert!(copies[0].transition.obs.shares(&ready[1].transition.obs));
+    assert!(copies[2].transition.obs.shares(&ready[3].transition.obs));
     assert_eq!(
         unpacked(&copies[0].transition)
             .goal_mask()
@@ -679,14 +672,14 @@ fn relabelled_copies_share_their_observation_through_a_snapshot() {
     assert_eq!(restored, buffer);
     let obs = |key: &Key| &restored.replay().get(key).unwrap().obs;
     for (copy, original) in [(4, 1), (5, 2), (6, 3)] {
-        assert!(Arc::ptr_eq(obs(&keys[copy]), obs(&keys[original])));
+        assert!(obs(&keys[copy]).shares(obs(&keys[original])));
         assert_eq!(
             unpacked(restored.replay().get(&keys[copy]).unwrap()).obs,
             non_goal_episode(0)[original].obs,
             "bit for bit after compression and a snapshot"
         );
     }
-    assert!(!Arc::ptr_eq(obs(&keys[1]), obs(&keys[2])));
+    assert!(!obs(&keys[1]).shares(obs(&keys[2])));
 }
 
 #[test]

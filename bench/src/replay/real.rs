@@ -54,6 +54,11 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
     };
     let raw = scenes[0].grid.len() * 8;
     put(format!("raw_bytes_per_step_{side}"), raw as f64);
+    let unpack_us = scenes.iter().map(|scene| {
+        let packed = buffer::PackedObservation::pack(scene);
+        timed(|| packed.unpack()).1.as_secs_f64() * 1e6
+    });
+    put(format!("unpack_us_{side}"), median(unpack_us.collect()));
     for codec in &CODECS {
         let (bytes, encode_us, decode_us) = codec_costs(codec, &scenes);
         put(format!("{}_bytes_per_step_{side}", codec.name), bytes);
@@ -66,7 +71,6 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
     let mut buffer = ReplayBuffer::new(
         BufferConfig {
             capacity: steps,
-            min_size_to_sample: 0,
             ..BufferConfig::default()
         },
         Serving {
