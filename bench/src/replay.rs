@@ -147,7 +147,7 @@ struct OurFigures {
 /// learner steps.
 fn bench_ours(capacity: usize, steps: usize) -> Result<OurFigures> {
     let config = BufferConfig {
-        capacity,
+        capacity: buffer::Capacity::Steps(capacity),
         ..BufferConfig::default()
     };
     let mut replay = PrioritizedReplay::new(&config)?;

@@ -19,7 +19,7 @@ pub mod snapshot;
 pub mod store;
 pub mod sum_tree;
 
-pub use config::BufferConfig;
+pub use config::{BufferConfig, Capacity};
 pub use error::{AssembleError, ReplayError, SnapshotError, SnapshotErrorKind};
 pub use observation::{CorruptObservation, PackedObservation, StoredTransition};
 pub use rate_limit::RateLimiter;

@@ -18,7 +18,7 @@ use std::cell::RefCell;
 use std::sync::Arc;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
-use sim::{Heightmaps, PixelGrid};
+use sim::{Camera, Heightmaps, PixelGrid, SimConfig, SimError, Tabletop};
 use thiserror::Error;
 use zstd::bulk::{Compressor, Decompressor};
 
@@ -167,6 +167,16 @@ impl PackedObservation {
     pub(crate) fn address(&self) -> *const u8 {
         self.0.as_ptr()
     }
+}
+
+/// About the bytes one stored step takes: a settled scene of `objects` blocks at the
+/// config's resolution, packed, and a slot's bookkeeping (the transition, its generation,
+/// priority and share of the sum tree, the shared allocation's counts).
+pub fn bytes_per_step(config: &SimConfig, objects: usize) -> Result<usize, SimError> {
+    const SLOT_BYTES: usize = std::mem::size_of::<StoredTransition>() + 8 + 8 + 10 + 16;
+    let (tabletop, _) = Tabletop::random(config, objects, 0)?;
+    let obs = Camera::new(tabletop.grid()).render(&tabletop);
+    Ok(PackedObservation::pack(&obs).0.len() + SLOT_BYTES)
 }
 
 /// `transition` as the rings hold it: its observation packed, shared by nothing yet.

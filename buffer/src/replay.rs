@@ -152,16 +152,18 @@ pub struct PrioritizedReplay {
 }
 
 impl PrioritizedReplay {
-    /// Empty rings of `config.capacity` each.
+    /// Empty rings of the config's capacity each (in transitions: see
+    /// [`BufferConfig::resolve`]).
     pub fn new(config: &BufferConfig) -> Result<Self, ConfigError> {
         config.validate()?;
+        let slots = config.slots()?;
         Ok(Self {
             alpha: config.alpha,
             beta_start: config.beta_start,
             beta_anneal_samples: config.beta_anneal_samples,
             epsilon: config.priority_epsilon,
-            push: Ring::new(config.capacity),
-            grasp: Ring::new(config.capacity),
+            push: Ring::new(slots),
+            grasp: Ring::new(slots),
             sampled: 0,
             stale_updates: 0,
         })
@@ -379,8 +381,9 @@ impl PrioritizedReplay {
 
     /// Checks the invariants a snapshot must satisfy against the config it carries.
     pub(crate) fn check(&self, config: &BufferConfig) -> Result<(), String> {
-        self.push.check(config.capacity)?;
-        self.grasp.check(config.capacity)?;
+        let slots = config.slots().map_err(|e| e.to_string())?;
+        self.push.check(slots)?;
+        self.grasp.check(slots)?;
         let rings = [
             (&self.push, Primitive::Push),
             (&self.grasp, Primitive::Grasp),

@@ -43,7 +43,7 @@ fn unpacked(t: &StoredTransition) -> Transition {
 
 fn config(capacity: usize) -> BufferConfig {
     BufferConfig {
-        capacity,
+        capacity: buffer::Capacity::Steps(capacity),
         ..BufferConfig::default()
     }
 }

@@ -273,6 +273,31 @@ impl RunConfig {
         Ok(())
     }
 
+    /// Sizes the replay for this run: a capacity in bytes becomes transitions per ring at
+    /// the bytes a stored step of this run's scenes takes, and a replay that cannot fit the
+    /// memory this machine has available is refused, with the figure it would need.
+    pub fn size_buffer(&mut self) -> Result<()> {
+        let step = buffer::observation::bytes_per_step(&self.sim, self.objects)?;
+        let asked = self.buffer.capacity;
+        self.buffer.resolve(step);
+        let slots = self.buffer.slots()?;
+        let needed = 2 * slots as u64 * step as u64;
+        if let Some(available) = available_memory()
+            && needed > available
+        {
+            bail!(
+                "buffer.capacity = {asked}: {slots} transitions per ring need about {:.1} GB \
+                 (2 rings x {slots} x ~{step} bytes a stored step at {side} x {side}), more \
+                 than the {:.1} GB this machine has available; lower it, or give it in bytes \
+                 (capacity = \"8 GiB\")",
+                needed as f64 / 1e9,
+                available as f64 / 1e9,
+                side = self.sim.grid()?.side(),
+            );
+        }
+        Ok(())
+    }
+
     /// Actor `index`'s exploration rate after it took `actions` actions.
     pub fn epsilon(&self, index: u32, actions: u64) -> f32 {
         match &self.apex_epsilon {
@@ -303,4 +328,12 @@ impl RunConfig {
     pub fn side(&self) -> usize {
         self.sim.grid().expect("validated").side()
     }
+}
+
+/// The memory this machine has available now (Linux's MemAvailable), where it says.
+fn available_memory() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }

@@ -196,6 +196,7 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
         config.init_from = Some(init);
     }
     config.validate()?;
+    config.size_buffer()?;
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
     std::fs::write(dir.config(), toml::to_string(&config)?)?;

@@ -1,5 +1,6 @@
 //! Run configs: the shipped ones load and train their stage; bad fields are refused naming
-//! the file and the field; per-actor exploration and row scenes.
+//! the file and the field; per-actor exploration and row scenes; the replay's capacity in
+//! transitions or bytes, and one too large for the machine.
 
 use std::path::Path;
 
@@ -72,23 +73,65 @@ fn grasp_trials_are_refused_where_the_grasp_net_is_frozen() {
     );
 }
 
-#[test]
-fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
+/// Stage 1's config with `field` (`table.key`) set to `value` (TOML), parsed.
+fn stage1_with(field: &str, value: &str) -> anyhow::Result<RunConfig> {
     let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/stage1.toml");
     let text = std::fs::read_to_string(stage1).unwrap();
+    let (table, key) = field.split_once('.').unwrap();
+    let mut config: toml::Table = toml::from_str(&text).unwrap();
+    let value: toml::Table = toml::from_str(&format!("v = {value}")).unwrap();
+    config
+        .entry(table)
+        .or_insert_with(|| toml::Table::new().into())
+        .as_table_mut()
+        .unwrap()
+        .insert(key.into(), value["v"].clone());
+    RunConfig::parse(&toml::to_string(&config).unwrap(), "run.toml")
+}
+
+#[test]
+fn the_replay_capacity_is_transitions_or_bytes_and_must_fit_the_machine() {
+    use buffer::Capacity;
+    let config = stage1_with("buffer.capacity", "5000").unwrap();
+    assert_eq!(config.buffer.capacity, Capacity::Steps(5000));
+    let mut config = stage1_with("buffer.capacity", "\"64 MiB\"").unwrap();
+    assert_eq!(config.buffer.capacity, Capacity::Bytes(64 << 20));
+    config.size_buffer().unwrap();
+    let step = buffer::observation::bytes_per_step(&config.sim, config.objects).unwrap();
+    assert!(
+        (1_000..20_000).contains(&step),
+        "{step} bytes a stored step at 112"
+    );
+    assert_eq!(
+        config.buffer.capacity,
+        Capacity::Steps((64 << 20) / (2 * step))
+    );
+    // The resolved config is what the run directory keeps, and reads back the same.
+    let written = toml::to_string(&config).unwrap();
+    assert!(written.contains(&format!("capacity = {}", (64 << 20) / (2 * step))));
+    assert_eq!(RunConfig::parse(&written, "copy").unwrap(), config);
+
+    // TOML names the line and shows the key; the message says what is accepted.
+    let err = stage1_with("buffer.capacity", "\"8 parsecs\"")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.starts_with("run.toml: TOML parse error at line"),
+        "{err}"
+    );
+    assert!(err.contains("capacity = \"8 parsecs\""), "{err}");
+    assert!(err.contains("nor a size such as \"8 GiB\""), "{err}");
+    // 2 x 4e9 transitions of a few KB: terabytes, more than any machine this runs on.
+    let mut huge = stage1_with("buffer.capacity", "4000000000").unwrap();
+    let err = huge.size_buffer().unwrap_err().to_string();
+    assert!(err.contains("buffer.capacity = 4000000000"), "{err}");
+    assert!(err.contains("GB") && err.contains("available"), "{err}");
+}
+
+#[test]
+fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
     // `field` is `table.key`; the error must name it (a nested table's key after it).
-    let with = |field: &str, value: &str| {
-        let (table, key) = field.split_once('.').unwrap();
-        let mut config: toml::Table = toml::from_str(&text).unwrap();
-        let value: toml::Table = toml::from_str(&format!("v = {value}")).unwrap();
-        config
-            .entry(table)
-            .or_insert_with(|| toml::Table::new().into())
-            .as_table_mut()
-            .unwrap()
-            .insert(key.into(), value["v"].clone());
-        RunConfig::parse(&toml::to_string(&config).unwrap(), "run.toml")
-    };
+    let with = stage1_with;
     for (field, value) in [
         ("sim.physics_hz", "0.0"),
         ("sim.grasp_lift", "0.03"),

@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use buffer::observation::planes;
-use buffer::{BufferConfig, ReplayBuffer, Serving};
+use buffer::{BufferConfig, Capacity, ReplayBuffer, Serving};
 use experience::{Key, Transition};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -70,7 +70,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
     let suffix = format!("real_2p{exponent}_{side}");
     let mut buffer = ReplayBuffer::new(
         BufferConfig {
-            capacity: steps,
+            capacity: Capacity::Steps(steps),
             ..BufferConfig::default()
         },
         Serving {

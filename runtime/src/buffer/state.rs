@@ -285,7 +285,7 @@ impl BufferRole {
             success_last30: self.report.success_last30,
             inserted: stats.inserted,
             stored: (stats.push_len + stats.grasp_len) as u64,
-            capacity: 2 * self.replay.config().capacity as u64,
+            capacity: 2 * self.replay.replay().capacity() as u64,
             relabelled: stats.relabelled,
             lost: self.report.lost(),
         }
