@@ -162,6 +162,31 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
 }
 
 #[test]
+fn the_buffer_snapshots_in_the_background_while_it_serves() {
+    let logs = logs();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG);
+    let mut config: toml::Table =
+        toml::from_str(&std::fs::read_to_string(shipped).unwrap()).unwrap();
+    config["buffer"]
+        .as_table_mut()
+        .unwrap()
+        .insert("snapshot_every_s".into(), toml::Value::Float(0.25));
+    let path = logs.path().join("snapshots.toml");
+    std::fs::write(&path, toml::to_string(&config).unwrap()).unwrap();
+    succeeds(command_with(
+        &path,
+        logs.path(),
+        &["--actors", "1", "--episodes", "20", "--run-id", "bg"],
+    ));
+    assert_lossless(logs.path(), "bg");
+    let buffer = &summary(logs.path(), "bg")["buffer"];
+    // The last one at the end, and others written while the run went on.
+    assert!(u(&buffer["snapshots"]) >= 3, "{buffer}");
+    assert!(buffer["snapshot_hold_ms_max"].as_f64().unwrap() > 0.0);
+    assert!(logs.path().join("bg/buffer.snapshot.prev").exists());
+}
+
+#[test]
 fn actors_share_the_buffer_when_the_learner_sets_the_pace() {
     // Grasp-only episodes are quicker than the learner's updates, so the buffer's rate
     // limiter holds the actors back: each must still get its steps in.

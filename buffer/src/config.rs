@@ -109,6 +109,9 @@ pub struct BufferConfig {
     /// Goal relabelling: a grasp of another object than the goal is stored again for that
     /// object, with the episode's pushes. False for the ablation without it.
     pub relabel: bool,
+    /// Seconds between the snapshots the buffer role writes in the background while it
+    /// serves (besides those on request and at the end); 0 for none.
+    pub snapshot_every_s: f64,
 }
 
 impl Default for BufferConfig {
@@ -123,6 +126,7 @@ impl Default for BufferConfig {
             samples_per_insert: 8.0,
             error_buffer: 256.0,
             relabel: true,
+            snapshot_every_s: 60.0,
         }
     }
 }
@@ -141,6 +145,7 @@ impl BufferConfig {
         ConfigError::check_range("alpha", self.alpha, 0.0..)?;
         ConfigError::check_range("beta_start", self.beta_start, 0.0..=1.0)?;
         ConfigError::check_range("priority_epsilon", self.priority_epsilon, above(0.0))?;
+        ConfigError::check_range("snapshot_every_s", self.snapshot_every_s, 0.0..)?;
         self.rate_limiter().map(drop)
     }
 

@@ -6,8 +6,8 @@
 //! grasps assembled, their observations compressed in parallel, stored), then learner steps
 //! at the learner's batch size are timed (sample, decompress the batch, update its priorities)
 //! beside the same sampling with each item's raw transition cloned (how the buffer served
-//! batches when it kept observations raw); then a snapshot is written, the buffer dropped, and
-//! the snapshot read back. Before that, the codecs the buffer could use are compared on the
+//! batches when it kept observations raw); then the copy a background snapshot takes is
+//! timed, a snapshot is written, the buffer dropped, and the snapshot read back. Before that, the codecs the buffer could use are compared on the
 //! same observations' planes.
 
 use std::hint::black_box;
@@ -111,6 +111,11 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         format!("learner_steps_per_s_raw_clone_2p{exponent}_{side}"),
         raw_clone,
     );
+
+    // What a background snapshot holds the buffer up for: the copy it writes.
+    let (copy, time) = timed(|| buffer.clone());
+    drop(copy);
+    put(format!("snapshot_hold_ms_{suffix}"), time.as_secs_f64() * 1e3);
 
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("replay.snap");

@@ -1,6 +1,7 @@
 //! The buffer role: receives every actor's steps, assembles and relabels episodes into the
 //! prioritised replay, answers the learner's sample requests and applies its priority
-//! updates, and snapshots on request and at shutdown.
+//! updates, and snapshots: every `[buffer] snapshot_every_s` in the background, on request
+//! and at shutdown.
 //!
 //! Every message on the steps topic carries its sender's sequence number, so the buffer
 //! proves the transport lost nothing: per actor incarnation, what arrived is exactly 0..n.
@@ -42,6 +43,9 @@ pub fn run(
     ports.status.send(&Message::Status(role.status()))?;
     let mut inflow = Inflow::new(config.actors + config.run.remote_actors);
     let mut last_status = Instant::now();
+    let snapshot_every = (config.buffer.snapshot_every_s > 0.0)
+        .then(|| Duration::from_secs_f64(config.buffer.snapshot_every_s));
+    let mut last_snapshot = Instant::now();
     loop {
         let Orders {
             stop,
@@ -57,6 +61,10 @@ pub fn run(
         if last_status.elapsed() >= STATUS_EVERY {
             role.report_to(&mut ports.status, log)?;
             last_status = Instant::now();
+        }
+        if snapshot_every.is_some_and(|every| last_snapshot.elapsed() >= every) {
+            role.save_in_background(dir)?;
+            last_snapshot = Instant::now();
         }
         if !busy {
             std::thread::sleep(Duration::from_millis(1));

@@ -4,6 +4,8 @@
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::PathBuf;
+use std::thread::JoinHandle;
+use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use buffer::{ReplayBuffer, Serving};
@@ -52,6 +54,10 @@ pub struct BufferReport {
     pub sampled: u64,
     pub priority_updates: u64,
     pub snapshots: u64,
+    /// The longest a snapshot held the buffer up: the copy it writes in the background
+    /// (or, on request and at the end, the whole write).
+    #[serde(default)]
+    pub snapshot_hold_ms_max: f64,
 }
 
 impl BufferReport {
@@ -84,6 +90,8 @@ pub(super) struct BufferRole {
     pub(super) rng: ChaCha8Rng,
     /// Every episode's outcome in arrival order (true: the goal was grasped).
     pub(super) outcomes: Vec<bool>,
+    /// The snapshot being written in the background, if one is.
+    writer: Option<JoinHandle<Result<()>>>,
 }
 
 impl BufferRole {
@@ -103,6 +111,7 @@ impl BufferRole {
             requests: VecDeque::new(),
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xb0ff),
             outcomes: Vec::new(),
+            writer: None,
         })
     }
 
@@ -291,25 +300,80 @@ impl BufferRole {
         }
     }
 
+    /// Writes a snapshot now, after any still being written in the background.
     pub(super) fn save(&mut self, dir: &RunDir) -> Result<()> {
+        let start = Instant::now();
+        self.finish_writing()?;
+        self.snapshot().write(dir)?;
+        self.held(start);
+        Ok(())
+    }
+
+    /// Starts writing a snapshot in the background from a copy taken now (the packed
+    /// observations are shared, not copied), unless one is still being written.
+    pub(super) fn save_in_background(&mut self, dir: &RunDir) -> Result<()> {
+        if self.writer.as_ref().is_some_and(|w| !w.is_finished()) {
+            return Ok(());
+        }
+        self.finish_writing()?;
+        let start = Instant::now();
+        let snapshot = self.snapshot();
+        self.held(start);
+        let dir = dir.clone();
+        self.writer = Some(std::thread::spawn(move || snapshot.write(&dir)));
+        Ok(())
+    }
+
+    /// Waits for the background snapshot, if one is being written; its error, if it failed.
+    fn finish_writing(&mut self) -> Result<()> {
+        match self.writer.take() {
+            Some(writer) => writer.join().expect("the snapshot writer does not panic"),
+            None => Ok(()),
+        }
+    }
+
+    fn held(&mut self, since: Instant) {
+        let ms = since.elapsed().as_secs_f64() * 1e3;
+        self.report.snapshot_hold_ms_max = self.report.snapshot_hold_ms_max.max(ms);
+    }
+
+    /// The buffer as it stands: the replay and the counters that go with it.
+    fn snapshot(&mut self) -> Snapshot {
         self.report.snapshots += 1;
         self.sync_report();
+        Snapshot {
+            replay: self.replay.clone(),
+            state: SavedState {
+                report: self.report.clone(),
+                open: self
+                    .streams
+                    .iter()
+                    .map(|(k, (_, open))| (*k, open.iter().copied().collect()))
+                    .collect(),
+                outcomes: self.outcomes.clone(),
+            },
+        }
+    }
+}
+
+/// A consistent copy of the buffer, to write.
+struct Snapshot {
+    replay: ReplayBuffer,
+    state: SavedState,
+}
+
+impl Snapshot {
+    /// Writes the replay, its counters and the learning curve, keeping the previous
+    /// generation of each.
+    fn write(self, dir: &RunDir) -> Result<()> {
         keep_previous(&dir.snapshot())?;
         keep_previous(&dir.buffer_counters())?;
         self.replay.save(&dir.snapshot())?;
-        let state = SavedState {
-            report: self.report.clone(),
-            open: self
-                .streams
-                .iter()
-                .map(|(k, (_, open))| (*k, open.iter().copied().collect()))
-                .collect(),
-            outcomes: self.outcomes.clone(),
-        };
-        write_json(&dir.buffer_counters(), &state)?;
+        write_json(&dir.buffer_counters(), &self.state)?;
+        let outcomes = &self.state.outcomes;
         let mut curve = String::from("episode,goal_grasped,success_last30\n");
-        for (i, &grasped) in self.outcomes.iter().enumerate() {
-            let window = &self.outcomes[(i + 1).saturating_sub(SUCCESS_WINDOW)..=i];
+        for (i, &grasped) in outcomes.iter().enumerate() {
+            let window = &outcomes[(i + 1).saturating_sub(SUCCESS_WINDOW)..=i];
             let rate = success(window).expect("not empty");
             curve.push_str(&format!("{},{},{rate:.4}\n", i + 1, u8::from(grasped)));
         }
