@@ -9,6 +9,7 @@
 //! holds the learner's samples to a ratio of the inserts. [`ReplayBuffer`] ties them together
 //! and snapshots to a file. A plain library: it knows nothing of how steps and batches travel.
 
+mod chunks;
 pub mod config;
 pub mod error;
 pub mod observation;

@@ -8,6 +8,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::{ConfigError, Primitive};
 
+use crate::chunks::SharedChunks;
 use crate::config::BufferConfig;
 use crate::error::ReplayError;
 use crate::observation::StoredTransition;
@@ -50,7 +51,8 @@ impl Batch<'_> {
 /// ([`crate::snapshot`]).
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct Ring {
-    pub(crate) items: Vec<StoredTransition>,
+    /// In shared chunks, so that a snapshot's copy is cheap ([`SharedChunks`]).
+    pub(crate) items: SharedChunks<StoredTransition>,
     /// The generation of the item in each slot.
     pub(crate) generations: Vec<u64>,
     /// The priority of each slot after the epsilon floor (the tree holds it raised to alpha).
@@ -65,9 +67,10 @@ pub(crate) struct Ring {
 impl Ring {
     fn new(capacity: usize) -> Self {
         // Reserved whole: the pages are taken only as slots fill, and a large ring never
-        // copies itself to grow (nor holds its old and new copies at once).
+        // copies itself to grow (nor holds its old and new copies at once). Items come in
+        // chunks as they are needed.
         Self {
-            items: Vec::with_capacity(capacity),
+            items: SharedChunks::default(),
             generations: Vec::with_capacity(capacity),
             priorities: Vec::with_capacity(capacity),
             tree: SumTree::new(capacity),
@@ -105,7 +108,7 @@ impl Ring {
             self.generations.push(generation);
             self.priorities.push(p);
         } else {
-            self.items[slot] = transition;
+            self.items.set(slot, transition);
             self.generations[slot] = generation;
             self.priorities[slot] = p;
         }

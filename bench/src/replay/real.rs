@@ -115,7 +115,10 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
     // What a background snapshot holds the buffer up for: the copy it writes.
     let (copy, time) = timed(|| buffer.clone());
     drop(copy);
-    put(format!("snapshot_hold_ms_{suffix}"), time.as_secs_f64() * 1e3);
+    put(
+        format!("snapshot_hold_ms_{suffix}"),
+        time.as_secs_f64() * 1e3,
+    );
 
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("replay.snap");

@@ -1,0 +1,98 @@
+//! A vector kept in shared chunks: a clone shares every chunk, and a write to a chunk that a
+//! clone still holds copies that chunk alone (copy on write). A consistent copy of a large
+//! ring, which a background snapshot takes, then costs its chunks, not its items.
+
+use std::ops::Index;
+use std::sync::Arc;
+
+/// Items per chunk: 4,096 transitions are about 256 KB, copied at most once per snapshot.
+const CHUNK: usize = 4096;
+
+#[derive(Clone, Debug)]
+pub(crate) struct SharedChunks<T> {
+    chunks: Vec<Arc<Vec<T>>>,
+    len: usize,
+}
+
+impl<T> Default for SharedChunks<T> {
+    fn default() -> Self {
+        Self {
+            chunks: Vec::new(),
+            len: 0,
+        }
+    }
+}
+
+impl<T: Clone> SharedChunks<T> {
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    pub(crate) fn push(&mut self, item: T) {
+        if self.len.is_multiple_of(CHUNK) {
+            self.chunks.push(Arc::new(Vec::with_capacity(CHUNK)));
+        }
+        let last = self.chunks.last_mut().expect("a chunk was just made");
+        Arc::make_mut(last).push(item);
+        self.len += 1;
+    }
+
+    /// Replaces item `i`, copying its chunk first if a clone shares it.
+    ///
+    /// # Panics
+    /// If `i >= len`.
+    pub(crate) fn set(&mut self, i: usize, item: T) {
+        assert!(i < self.len, "item {i} of {}", self.len);
+        Arc::make_mut(&mut self.chunks[i / CHUNK])[i % CHUNK] = item;
+    }
+
+    pub(crate) fn iter(&self) -> impl Iterator<Item = &T> {
+        self.chunks.iter().flat_map(|chunk| chunk.iter())
+    }
+}
+
+impl<T> Index<usize> for SharedChunks<T> {
+    type Output = T;
+
+    fn index(&self, i: usize) -> &T {
+        assert!(i < self.len, "item {i} of {}", self.len);
+        &self.chunks[i / CHUNK][i % CHUNK]
+    }
+}
+
+impl<T: Clone> FromIterator<T> for SharedChunks<T> {
+    fn from_iter<I: IntoIterator<Item = T>>(items: I) -> Self {
+        let mut chunks = Self::default();
+        items.into_iter().for_each(|item| chunks.push(item));
+        chunks
+    }
+}
+
+impl<T: Clone + PartialEq> PartialEq for SharedChunks<T> {
+    fn eq(&self, other: &Self) -> bool {
+        self.len == other.len && self.iter().eq(other.iter())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_clone_keeps_what_it_saw_while_the_original_changes() {
+        let mut items: SharedChunks<u32> = (0..3 * CHUNK as u32 + 5).collect();
+        let copy = items.clone();
+        assert!(Arc::ptr_eq(&items.chunks[1], &copy.chunks[1]), "shared");
+        items.set(CHUNK + 7, 99);
+        items.push(7);
+        assert_eq!(items[CHUNK + 7], 99);
+        assert_eq!(copy[CHUNK + 7], CHUNK as u32 + 7);
+        assert_eq!((items.len(), copy.len()), (3 * CHUNK + 6, 3 * CHUNK + 5));
+        // Only the chunk written was copied.
+        assert!(!Arc::ptr_eq(&items.chunks[1], &copy.chunks[1]));
+        assert!(Arc::ptr_eq(&items.chunks[0], &copy.chunks[0]));
+        assert!(Arc::ptr_eq(&items.chunks[2], &copy.chunks[2]));
+        assert_eq!(copy.iter().copied().max(), Some(3 * CHUNK as u32 + 4));
+        assert_ne!(items, copy);
+    }
+}
