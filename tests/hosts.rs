@@ -15,6 +15,8 @@ use serde_json::Value;
 
 #[path = "slurm/daemons.rs"]
 mod daemons;
+#[path = "common/stage1.rs"]
+mod stage1;
 
 const CONFIG: &str = "configs/stage1.toml";
 
@@ -571,11 +573,7 @@ fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
     };
     let logs = tempfile::tempdir().unwrap();
     let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut config: toml::Table =
-        toml::from_str(&std::fs::read_to_string(repo.join(CONFIG)).unwrap()).unwrap();
-    config.insert("episodes".into(), toml::Value::Integer(30));
-    let short = logs.path().join("short.toml");
-    std::fs::write(&short, toml::to_string(&config).unwrap()).unwrap();
+    let short = stage1::stage1_with(logs.path(), "short", "episodes", toml::Value::Integer(30));
     let port = std::net::TcpListener::bind("0.0.0.0:0")
         .and_then(|l| l.local_addr())
         .unwrap()
@@ -697,16 +695,12 @@ fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
         return;
     }
     // Weights seldom: their TCP acknowledgements share the shaped way up.
-    let mut config: toml::Table = toml::from_str(
-        &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG)).unwrap(),
-    )
-    .unwrap();
-    config["learner"]
-        .as_table_mut()
-        .unwrap()
-        .insert("publish_every".into(), toml::Value::Integer(50));
-    let seldom = machines.logs().join("seldom.toml");
-    std::fs::write(&seldom, toml::to_string(&config).unwrap()).unwrap();
+    let seldom = stage1::stage1_with(
+        machines.logs(),
+        "seldom",
+        "learner.publish_every",
+        toml::Value::Integer(50),
+    );
     let run = "slow";
     let central = machines.central(
         run,

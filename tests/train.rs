@@ -9,6 +9,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+#[path = "common/stage1.rs"]
+mod stage1;
+
 const CONFIG: &str = "configs/stage1.toml";
 
 fn command(logs: &Path, args: &[&str]) -> Command {
@@ -164,15 +167,12 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
 #[test]
 fn the_buffer_snapshots_in_the_background_while_it_serves() {
     let logs = logs();
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG);
-    let mut config: toml::Table =
-        toml::from_str(&std::fs::read_to_string(shipped).unwrap()).unwrap();
-    config["buffer"]
-        .as_table_mut()
-        .unwrap()
-        .insert("snapshot_every_s".into(), toml::Value::Float(0.25));
-    let path = logs.path().join("snapshots.toml");
-    std::fs::write(&path, toml::to_string(&config).unwrap()).unwrap();
+    let path = stage1::stage1_with(
+        logs.path(),
+        "snapshots",
+        "buffer.snapshot_every_s",
+        toml::Value::Float(0.25),
+    );
     succeeds(command_with(
         &path,
         logs.path(),

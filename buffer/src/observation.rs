@@ -11,7 +11,7 @@
 //! into a wrong scene.
 //!
 //! A packed observation is one shared allocation (its header, then the frame): relabelled
-//! copies of a step hold the same one, and a small step costs one allocation, not three.
+//! copies of a step hold the same one, and a small step costs one allocation, not two.
 
 use std::borrow::Cow;
 use std::cell::RefCell;

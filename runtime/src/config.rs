@@ -292,7 +292,7 @@ impl RunConfig {
                  (capacity = \"8 GiB\")",
                 needed as f64 / 1e9,
                 available as f64 / 1e9,
-                side = self.sim.grid()?.side(),
+                side = self.side(),
             );
         }
         Ok(())

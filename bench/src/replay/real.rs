@@ -52,18 +52,19 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         };
         figures.insert(name, rounded.into());
     };
-    let raw = scenes[0].grid.len() * 8;
+    let raw = planes(&scenes[0]).len();
     put(format!("raw_bytes_per_step_{side}"), raw as f64);
     let unpack_us = scenes.iter().map(|scene| {
         let packed = buffer::PackedObservation::pack(scene);
         timed(|| packed.unpack()).1.as_secs_f64() * 1e6
     });
     put(format!("unpack_us_{side}"), median(unpack_us.collect()));
-    for codec in &CODECS {
+    for codec in CODECS {
         let (bytes, encode_us, decode_us) = codec_costs(codec, &scenes);
-        put(format!("{}_bytes_per_step_{side}", codec.name), bytes);
-        put(format!("{}_encode_us_{side}", codec.name), encode_us);
-        put(format!("{}_decode_us_{side}", codec.name), decode_us);
+        let name = codec.name();
+        put(format!("{name}_bytes_per_step_{side}"), bytes);
+        put(format!("{name}_encode_us_{side}"), encode_us);
+        put(format!("{name}_decode_us_{side}"), decode_us);
     }
 
     let steps = 1usize << exponent;
@@ -210,45 +211,47 @@ fn learner_steps(buffer: &mut ReplayBuffer, scenes: &[Heightmaps]) -> Result<[f6
 }
 
 /// A codec the buffer could store observations with.
-struct Codec {
-    name: &'static str,
-    encode: fn(&[u8]) -> Vec<u8>,
-    decode: fn(&[u8], usize) -> Vec<u8>,
+#[derive(Clone, Copy)]
+enum Codec {
+    Zstd(i32),
+    Lz4,
 }
 
-const CODECS: [Codec; 4] = [
-    Codec {
-        name: "zstd1",
-        encode: |b| zstd::bulk::compress(b, 1).expect("zstd compresses"),
-        decode: |b, n| zstd::bulk::decompress(b, n).expect("zstd decodes its own"),
-    },
-    Codec {
-        name: "zstd3",
-        encode: |b| zstd::bulk::compress(b, 3).expect("zstd compresses"),
-        decode: |b, n| zstd::bulk::decompress(b, n).expect("zstd decodes its own"),
-    },
-    Codec {
-        name: "zstd9",
-        encode: |b| zstd::bulk::compress(b, 9).expect("zstd compresses"),
-        decode: |b, n| zstd::bulk::decompress(b, n).expect("zstd decodes its own"),
-    },
-    Codec {
-        name: "lz4",
-        encode: lz4_flex::block::compress,
-        decode: |b, n| lz4_flex::block::decompress(b, n).expect("lz4 decodes its own"),
-    },
-];
+const CODECS: [Codec; 4] = [Codec::Zstd(1), Codec::Zstd(3), Codec::Zstd(9), Codec::Lz4];
+
+impl Codec {
+    fn name(self) -> String {
+        match self {
+            Codec::Zstd(level) => format!("zstd{level}"),
+            Codec::Lz4 => "lz4".into(),
+        }
+    }
+
+    fn encode(self, bytes: &[u8]) -> Vec<u8> {
+        match self {
+            Codec::Zstd(level) => zstd::bulk::compress(bytes, level).expect("zstd compresses"),
+            Codec::Lz4 => lz4_flex::block::compress(bytes),
+        }
+    }
+
+    fn decode(self, bytes: &[u8], len: usize) -> Vec<u8> {
+        match self {
+            Codec::Zstd(_) => zstd::bulk::decompress(bytes, len).expect("zstd decodes its own"),
+            Codec::Lz4 => lz4_flex::block::decompress(bytes, len).expect("lz4 decodes its own"),
+        }
+    }
+}
 
 /// Mean bytes per step, median encode and decode microseconds of one step's planes.
-fn codec_costs(codec: &Codec, scenes: &[Heightmaps]) -> (f64, f64, f64) {
+fn codec_costs(codec: Codec, scenes: &[Heightmaps]) -> (f64, f64, f64) {
     let (mut bytes, mut encode, mut decode) = (0, Vec::new(), Vec::new());
     for scene in scenes {
         let planes = planes(scene);
-        let (packed, time) = timed(|| (codec.encode)(&planes));
+        let (packed, time) = timed(|| codec.encode(&planes));
         encode.push(time.as_secs_f64() * 1e6);
-        let (back, time) = timed(|| (codec.decode)(&packed, planes.len()));
+        let (back, time) = timed(|| codec.decode(&packed, planes.len()));
         decode.push(time.as_secs_f64() * 1e6);
-        assert_eq!(back, planes, "{} round-trips", codec.name);
+        assert_eq!(back, planes, "{} round-trips", codec.name());
         bytes += packed.len();
     }
     (
