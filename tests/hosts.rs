@@ -174,8 +174,21 @@ impl Machines {
             .expect("pushgrasp train starts")
     }
 
-    /// `pushgrasp join` on joined host `host`, as `name`, with the run's secret file or another.
+    /// `pushgrasp join` on joined host `host`, as `name`, with the run's secret file or
+    /// another; it gives up 5 s after the central host is gone.
     fn join(&self, host: usize, run: &str, name: &str, secret: &Path) -> Command {
+        self.join_giving_up_after(host, run, name, secret, 5)
+    }
+
+    /// [`Machines::join`] that waits `give_up_s` for a central host that is gone.
+    fn join_giving_up_after(
+        &self,
+        host: usize,
+        run: &str,
+        name: &str,
+        secret: &Path,
+        give_up_s: u32,
+    ) -> Command {
         let (mut command, address) = match &self.hosts[host] {
             Place::Namespace { name, address, .. } => {
                 let mut command = Command::new("ip");
@@ -191,7 +204,7 @@ impl Machines {
         command
             .args(["join", &format!("tcp/{address}:{}", self.port)])
             .args(["--run-id", run, "--actors", "1", "--host-name", name])
-            .args(["--give-up-after-s", "5"])
+            .args(["--give-up-after-s", &give_up_s.to_string()])
             .arg("--secret-file")
             .arg(secret)
             .arg("--logs")
@@ -311,8 +324,14 @@ fn actor_reports(dir: &Path) -> Vec<Value> {
         .collect()
 }
 
+/// Whether process `pid` runs: a zombie whose parent was killed too (left to an init that
+/// may never reap it) has ended.
 fn alive(pid: u64) -> bool {
-    Path::new(&format!("/proc/{pid}")).exists()
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| {
+        // The state follows the command's closing parenthesis.
+        stat.rsplit_once(')')
+            .is_some_and(|(_, rest)| !matches!(rest.trim_start().chars().next(), Some('Z' | 'X')))
+    })
 }
 
 #[test]
@@ -631,7 +650,12 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
         &["--actors", "1", "--remote-actors", "1", "--episodes", "200"],
     );
     let secret = machines.secret(run);
-    let joined = machines.join(0, run, "h0", &secret).spawn().unwrap();
+    // The link comes back after 8 s, but Zenoh's reconnection backs off and TCP's SYN
+    // retries are slow on a loaded machine: give up only long after that.
+    let joined = machines
+        .join_giving_up_after(0, run, "h0", &secret, 60)
+        .spawn()
+        .unwrap();
     first_actor_pid(&machines, run, "h0");
     std::thread::sleep(Duration::from_secs(3));
     // Longer than Zenoh's lease (5 s): the central host drops the session.
@@ -682,12 +706,13 @@ fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
         eprintln!("skipping the slow link: no network namespace to shape");
         return;
     };
-    // 64 kbit/s from the host: a few compressed steps a second, fewer than its actor makes.
+    // 32 kbit/s from the host: two or three compressed steps a second, fewer than its actor
+    // makes even on a loaded machine (and enough for Zenoh's keep-alives within its lease).
     let shaped = Command::new("ip")
         .args([
             "netns", "exec", name, "tc", "qdisc", "add", "dev", inside, "root",
         ])
-        .args(["tbf", "rate", "64kbit", "burst", "16kbit", "latency", "2s"])
+        .args(["tbf", "rate", "32kbit", "burst", "16kbit", "latency", "2s"])
         .status()
         .is_ok_and(|s| s.success());
     if !shaped {
@@ -746,8 +771,10 @@ fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
     eprintln!(
         "slow link: remote {remote} episodes, local {local}; the host's bridge at most {most} MB"
     );
+    // Unheld, both actors would act alike; the link lets the remote one do far fewer (a
+    // half on an idle machine; on a loaded one the local actor slows too).
     assert!(
-        remote * 2 < local,
+        remote * 3 < local * 2,
         "remote {remote} episodes, local {local}: not held back"
     );
     assert!(most < 400, "the joined host's bridge grew to {most} MB");
