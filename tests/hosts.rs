@@ -592,7 +592,11 @@ fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
     };
     let logs = tempfile::tempdir().unwrap();
     let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let short = stage1::stage1_with(logs.path(), "short", "episodes", toml::Value::Integer(30));
+    let short = stage1::stage1_with(
+        logs.path(),
+        "short",
+        &[("episodes", toml::Value::Integer(30))],
+    );
     let port = std::net::TcpListener::bind("0.0.0.0:0")
         .and_then(|l| l.local_addr())
         .unwrap()
@@ -723,8 +727,7 @@ fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
     let seldom = stage1::stage1_with(
         machines.logs(),
         "seldom",
-        "learner.publish_every",
-        toml::Value::Integer(50),
+        &[("learner.publish_every", toml::Value::Integer(50))],
     );
     let run = "slow";
     let central = machines.central(

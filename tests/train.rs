@@ -170,8 +170,7 @@ fn the_buffer_snapshots_in_the_background_while_it_serves() {
     let path = stage1::stage1_with(
         logs.path(),
         "snapshots",
-        "buffer.snapshot_every_s",
-        toml::Value::Float(0.25),
+        &[("buffer.snapshot_every_s", toml::Value::Float(0.25))],
     );
     succeeds(command_with(
         &path,
@@ -579,17 +578,17 @@ fn role_fault(config: &Path, logs: &Path, run: &str, role: &str, kill: &str) -> 
     (status.success(), pid)
 }
 
-/// The stage-1 config with a 3 s heartbeat timeout, written into `logs`.
+/// The stage-1 config with a 3 s heartbeat timeout and a buffer snapshot every second,
+/// written into `logs`.
 fn impatient_config(logs: &Path) -> std::path::PathBuf {
-    let stage1 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(CONFIG))
-        .expect("the stage-1 config");
-    let config = logs.join("impatient.toml");
-    std::fs::write(
-        &config,
-        format!("{stage1}\n[run]\nheartbeat_timeout_s = 3\n"),
+    stage1::stage1_with(
+        logs,
+        "impatient",
+        &[
+            ("run.heartbeat_timeout_s", toml::Value::Float(3.0)),
+            ("buffer.snapshot_every_s", toml::Value::Float(1.0)),
+        ],
     )
-    .unwrap();
-    config
 }
 
 /// What a run whose learner was restarted must show: the run reached its budget, the fault
@@ -642,7 +641,7 @@ fn a_hung_learner_is_noticed_killed_and_restarted() {
 }
 
 #[test]
-fn a_hung_actor_is_killed_and_restarted_and_a_hung_buffer_ends_the_run_with_its_summary() {
+fn a_hung_actor_is_killed_and_restarted() {
     let logs = logs();
     let config = impatient_config(logs.path());
     let (ok, actor) = role_fault(&config, logs.path(), "actor-hangs", "actor-0-0", "STOP");
@@ -659,22 +658,98 @@ fn a_hung_actor_is_killed_and_restarted_and_a_hung_buffer_ends_the_run_with_its_
         "{faults:?}"
     );
     assert!(!Path::new(&format!("/proc/{actor}")).exists());
+}
 
-    let (ok, buffer) = role_fault(&config, logs.path(), "buffer-hangs", "buffer", "STOP");
-    assert!(!ok, "a run whose buffer hung exited 0");
-    let buffer_summary = summary(logs.path(), "buffer-hangs");
-    let failure = buffer_summary["failure"].as_str().unwrap_or_default();
+/// Starts a 1-actor run of 300 episodes, sends `kill` to its buffer once a snapshot holds 20
+/// episodes, and waits for the run to end: whether it succeeded, and the buffer's pid.
+fn buffer_fault(config: &Path, logs: &Path, run: &str, kill: &str) -> (bool, i32) {
+    let mut child = command_with(
+        config,
+        logs,
+        &["--actors", "1", "--episodes", "300", "--run-id", run],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("pushgrasp starts");
+    let buffer = pid_of(&wait_for_processes(logs, run, 3), "buffer");
+    let counters = logs.join(run).join("buffer-counters.json");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while std::fs::read(&counters)
+        .ok()
+        .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
+        .is_none_or(|saved| saved["report"]["episodes"].as_u64() < Some(20))
+    {
+        assert!(Instant::now() < deadline, "no snapshot of 20 episodes");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    signal(buffer, kill);
+    let status = wait_exit(&mut child, Duration::from_secs(300));
+    (status.success(), buffer)
+}
+
+/// What a run whose buffer was restarted must show: the run reached its budget with no
+/// actor restarted; the fault was recorded as restarted, with what the restart lost; the
+/// restarted buffer took over the snapshot's replay and reported; every step an actor sent
+/// arrived or was counted lost to the restart, and nothing else is missing.
+fn assert_buffer_restarted(logs: &Path, run: &str, cause: &str) {
+    let summary = summary(logs, run);
+    assert!(summary["failure"].is_null(), "{}", summary["failure"]);
+    assert_eq!(u(&summary["restarts"]), 0, "an actor was restarted");
+    let buffer = &summary["buffer"];
+    assert!(u(&buffer["episodes"]) >= 300);
+    let faults = summary["faults"].as_array().unwrap();
+    let fault = faults
+        .iter()
+        .find(|f| f["role"] == "buffer")
+        .unwrap_or_else(|| panic!("no buffer fault in {faults:?}"));
     assert!(
-        failure.contains("buffer") && failure.contains("no status report"),
-        "failure: {failure:?}"
+        fault["restarted"] == true && fault["cause"].as_str().unwrap().contains(cause),
+        "{fault}"
     );
+    let streams = buffer["streams"].as_array().unwrap();
+    let lost: u64 = streams.iter().map(|s| u(&s["lost_in_restart"])).sum();
+    assert_eq!(u(&buffer["lost_in_restarts"]), lost);
+    assert_eq!(u(&fault["lost_messages"]), lost, "{fault}");
+    for stream in streams {
+        assert_eq!(u(&stream["missing"]), 0, "a gap in {stream}");
+    }
+    for report in summary["actors_reports"].as_array().unwrap() {
+        let stream = streams
+            .iter()
+            .find(|s| s["actor"] == report["actor"] && s["incarnation"] == report["incarnation"])
+            .unwrap_or_else(|| panic!("no stream for {report}"));
+        assert!(
+            u(&stream["steps"]) + u(&stream["lost_in_restart"]) >= u(&report["steps_sent"]),
+            "steps neither received nor counted lost: {stream} {report}"
+        );
+    }
+    let dir = logs.join(run);
+    assert!(dir.join("reports/buffer-1.json").exists());
+    let log = std::fs::read_to_string(dir.join("buffer-1.log")).unwrap();
+    let restored: u64 = log
+        .split("restored ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("buffer-1.log says nothing restored:\n{log}"));
+    assert!(restored >= 20, "restored {restored} items");
+}
+
+#[test]
+fn a_killed_or_hung_buffer_is_restarted_from_its_snapshot_with_the_loss_counted() {
+    let logs = logs();
+    let config = impatient_config(logs.path());
+    let (ok, _) = buffer_fault(&config, logs.path(), "buffer-dies", "KILL");
+    assert!(ok, "the run failed after the buffer was killed");
+    assert_buffer_restarted(logs.path(), "buffer-dies", "signal: 9");
+
+    // Hung: the actor and the learner, waiting on it, fall silent too; only the buffer is
+    // killed.
+    let (ok, buffer) = buffer_fault(&config, logs.path(), "buffer-hangs", "STOP");
+    assert!(ok, "the run failed after the buffer hung");
+    assert_buffer_restarted(logs.path(), "buffer-hangs", "no status report");
     assert!(!Path::new(&format!("/proc/{buffer}")).exists());
-    // The learner stopped in order and reported.
-    assert!(
-        logs.path()
-            .join("buffer-hangs/reports/learner.json")
-            .exists()
-    );
 }
 
 #[test]

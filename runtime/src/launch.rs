@@ -1,7 +1,7 @@
 //! `pushgrasp train`: makes the run directory, starts the buffer, then the learner, then the
 //! actors; shows progress; and stops everything in order (actors, then the learner, which
 //! checkpoints, then the buffer, which takes the last steps and snapshots) when the budget
-//! is reached, on Ctrl-C, or when the learner or the buffer fails.
+//! is reached, on Ctrl-C, or when a role fails more often than it is restarted.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -14,6 +14,7 @@ use mcaplog::LogLevel;
 use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
+use crate::buffer::BufferReport;
 use crate::config::RunConfig;
 use crate::hosts::HostLink;
 use crate::progress::{Display, Summary, Watch, percent};
@@ -118,7 +119,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         restarts: supervisor.restarts(),
         interrupted: signals.interrupted(),
         wall_s: start.elapsed().as_secs_f64(),
-        buffer: report_or(&dir.report(Role::Buffer.name()), || {
+        buffer: report_or(&dir.report(&supervisor.buffer().name()), || {
             watch.progress.buffer_report()
         })?,
         learner: report_or(&dir.report(&supervisor.learner().name()), || {
@@ -130,18 +131,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         hosts,
     };
     for fault in &mut summary.faults {
-        fault.lost_messages = summary
-            .buffer
-            .streams
-            .iter()
-            .find(|s| {
-                let id = ActorId {
-                    index: s.actor,
-                    incarnation: s.incarnation,
-                };
-                RoleId::Actor(id).name() == fault.role
-            })
-            .map(|s| s.missing);
+        fault.lost_messages = lost_in_fault(&summary.buffer, &fault.role);
     }
     write_json(&dir.summary(), &summary)?;
     supervisor.log.json(LAUNCHER_SUMMARY, &summary)?;
@@ -232,6 +222,26 @@ fn report_or<T: serde::de::DeserializeOwned>(path: &Path, missing: impl Fn() -> 
     }
 }
 
+/// What the buffer counted lost to the fault of role `role`: the gaps in a crashed actor's
+/// stream, or what the buffer that took over from a crashed one found missing.
+fn lost_in_fault(buffer: &BufferReport, role: &str) -> Option<u64> {
+    let stream = buffer.streams.iter().find(|s| {
+        let id = ActorId {
+            index: s.actor,
+            incarnation: s.incarnation,
+        };
+        RoleId::Actor(id).name() == role
+    });
+    if let Some(stream) = stream {
+        return Some(stream.missing);
+    }
+    buffer
+        .restart_losses
+        .iter()
+        .find(|&(&next, _)| next > 0 && RoleId::Buffer(next - 1).name() == role)
+        .map(|(_, &lost)| lost)
+}
+
 /// The reports of actors that stopped cleanly, in index and incarnation order.
 fn actor_reports(dir: &RunDir) -> Result<Vec<ActorReport>> {
     let mut reports = Vec::new();
@@ -250,7 +260,7 @@ fn actor_reports(dir: &RunDir) -> Result<Vec<ActorReport>> {
 
 fn print_summary(summary: &Summary, dir: &RunDir) {
     println!(
-        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost), {} learner updates, {} actor restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
+        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost{}), {} learner updates, {} actor restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
         match (&summary.failure, summary.interrupted) {
             (Some(_), _) => "failed",
             (None, true) => "interrupted",
@@ -261,6 +271,10 @@ fn print_summary(summary: &Summary, dir: &RunDir) {
         percent(summary.buffer.success_last30),
         summary.buffer.steps_received,
         summary.buffer.lost(),
+        match summary.buffer.lost_in_restarts {
+            0 => String::new(),
+            n => format!(", {n} messages lost to restarts of the buffer"),
+        },
         summary.learner.updates,
         summary.restarts,
         summary.wall_s,
@@ -312,7 +326,7 @@ fn start_roles(
     watch: &mut Watch,
     actors: u32,
 ) -> Result<()> {
-    supervisor.start(RoleId::Buffer)?;
+    supervisor.start(RoleId::Buffer(0))?;
     let deadline = Instant::now() + START_TIMEOUT;
     while watch.progress.capacity == 0 {
         watch.read(status, supervisor)?;

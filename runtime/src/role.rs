@@ -18,24 +18,45 @@ use crate::run_dir::RunDir;
 use crate::{Lifeline, write_json};
 
 /// One role of a run: its kind ([`Role`]) and which one: an actor's index and incarnation,
-/// the learner's incarnation (0, then one more for each restart).
+/// the buffer's or the learner's incarnation (0, then one more for each restart).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RoleId {
-    Buffer,
+    Buffer(u32),
     Learner(u32),
     Actor(ActorId),
 }
 
 impl RoleId {
     /// The role's name in logs, reports and shared-memory nodes (`actor-<index>-<incarnation>`
-    /// for an actor, `learner-<incarnation>` for a restarted learner).
+    /// for an actor, `buffer-<incarnation>` or `learner-<incarnation>` for a restarted buffer
+    /// or learner).
     pub fn name(self) -> String {
         match self {
             RoleId::Actor(id) => format!("{}-{}-{}", Role::Actor, id.index, id.incarnation),
-            RoleId::Learner(incarnation) if incarnation > 0 => {
-                format!("{}-{incarnation}", Role::Learner)
+            RoleId::Buffer(0) | RoleId::Learner(0) => self.kind().name().into(),
+            RoleId::Buffer(incarnation) | RoleId::Learner(incarnation) => {
+                format!("{}-{incarnation}", self.kind())
             }
-            other => other.kind().name().into(),
+        }
+    }
+
+    /// How many times this role was started before in the run.
+    pub fn incarnation(self) -> u32 {
+        match self {
+            RoleId::Buffer(incarnation) | RoleId::Learner(incarnation) => incarnation,
+            RoleId::Actor(id) => id.incarnation,
+        }
+    }
+
+    /// The same role started again.
+    pub fn next_incarnation(self) -> RoleId {
+        match self {
+            RoleId::Buffer(incarnation) => RoleId::Buffer(incarnation + 1),
+            RoleId::Learner(incarnation) => RoleId::Learner(incarnation + 1),
+            RoleId::Actor(id) => RoleId::Actor(ActorId {
+                index: id.index,
+                incarnation: id.incarnation + 1,
+            }),
         }
     }
 
@@ -50,7 +71,7 @@ impl RoleId {
 
     pub fn kind(self) -> Role {
         match self {
-            RoleId::Buffer => Role::Buffer,
+            RoleId::Buffer(_) => Role::Buffer,
             RoleId::Learner(_) => Role::Learner,
             RoleId::Actor(_) => Role::Actor,
         }
@@ -83,8 +104,14 @@ pub fn run_role(
     let log = open_log(dir, &name, config)?;
     log.log_line(LogLevel::Info, &format!("{name} started"))?;
     let result = match id {
-        RoleId::Buffer => crate::buffer::run(transport, config, dir, from.resume, &log, lifeline)
-            .and_then(|r| write_json(&report, &r)),
+        RoleId::Buffer(incarnation) => {
+            let start = crate::buffer::Start {
+                resume: from.resume,
+                incarnation,
+            };
+            crate::buffer::run(transport, config, dir, start, &log, lifeline)
+                .and_then(|r| write_json(&report, &r))
+        }
         RoleId::Learner(incarnation) => {
             let start = crate::learner::Start {
                 resume: from.resume,
@@ -141,7 +168,7 @@ pub struct RoleArgs {
     /// The actor's index.
     #[arg(long, default_value_t = 0)]
     pub index: u32,
-    /// How many times this actor index (or the learner) was started before.
+    /// How many times this actor index (or the buffer, or the learner) was started before.
     #[arg(long, default_value_t = 0)]
     pub incarnation: u32,
     /// A restarted learner: the newest weight version published before it.
@@ -152,7 +179,7 @@ pub struct RoleArgs {
 impl RoleArgs {
     pub fn id(&self) -> RoleId {
         match self.role {
-            Role::Buffer => RoleId::Buffer,
+            Role::Buffer => RoleId::Buffer(self.incarnation),
             Role::Learner => RoleId::Learner(self.incarnation),
             Role::Actor => RoleId::Actor(ActorId {
                 index: self.index,

@@ -16,6 +16,9 @@ pub enum Message {
     Weights(Weights),
     Control(Control),
     Status(Status),
+    /// The buffer (this incarnation) has started and takes sample requests from now on; any
+    /// sent before were lost with its predecessor (buffer -> learner, on the batches topic).
+    BufferStarted(u32),
 }
 
 /// The roles of a run.

@@ -14,7 +14,7 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
-use mcaplog::RunLog;
+use mcaplog::{LogLevel, RunLog};
 use wire::{Inbox, Message, Outbox, Topic, Transport};
 
 use crate::config::RunConfig;
@@ -24,21 +24,38 @@ use crate::{Lifeline, STATUS_EVERY};
 pub use state::{BufferReport, StreamCount};
 use state::{BufferRole, Orders};
 
+/// How this buffer process starts.
+#[derive(Clone, Copy, Debug)]
+pub struct Start {
+    /// From the run directory's snapshot, if it holds one.
+    pub resume: bool,
+    /// 0, then one more for each restart of the buffer in the run.
+    pub incarnation: u32,
+}
+
 /// Serves until the launcher says stop; then takes every step still in flight, snapshots and
 /// returns its counters. With `resume`, starts from the run directory's snapshot.
 pub fn run(
     transport: &dyn Transport,
     config: &RunConfig,
     dir: &RunDir,
-    resume: bool,
+    start: Start,
     log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<BufferReport> {
-    let mut role = BufferRole::new(config)?;
-    if resume && (dir.snapshot().exists() || previous(&dir.snapshot()).exists()) {
+    let mut role = BufferRole::new(config, start.incarnation)?;
+    if start.resume && (dir.snapshot().exists() || previous(&dir.snapshot()).exists()) {
         role.restore(dir)?;
+        let stats = role.replay.stats();
+        let message = format!(
+            "restored {} stored items and {} episodes from the snapshot",
+            stats.push_len + stats.grasp_len,
+            role.report.episodes
+        );
+        eprintln!("buffer: {message}");
+        log.log_line(LogLevel::Info, &message)?;
     }
-    let mut ports = Ports::open(transport)?;
+    let mut ports = Ports::open(transport, start.incarnation)?;
     // The first report says the buffer listens: the launcher starts actors only then.
     ports.status.send(&Message::Status(role.status()))?;
     let mut inflow = Inflow::new(config.actors + config.run.remote_actors);
@@ -85,14 +102,19 @@ struct Ports {
 }
 
 impl Ports {
-    fn open(transport: &dyn Transport) -> Result<Self> {
-        Ok(Self {
+    /// Opens the topics, then tells the learner that this buffer listens: what it asked a
+    /// predecessor (a buffer that died) will never be answered, so it asks again. (Told
+    /// before this buffer listened, it would ask into the void.)
+    fn open(transport: &dyn Transport, incarnation: u32) -> Result<Self> {
+        let mut ports = Self {
             steps: Inbox::open(transport, Topic::Steps)?,
             requests: Inbox::open(transport, Topic::Requests)?,
             control: Inbox::open(transport, Topic::Control)?,
             batches: Outbox::open(transport, Topic::Batches)?,
             status: Outbox::open(transport, Topic::Status)?,
-        })
+        };
+        ports.batches.send(&Message::BufferStarted(incarnation))?;
+        Ok(ports)
     }
 }
 

@@ -32,8 +32,12 @@ pub struct StreamCount {
     pub steps: u64,
     /// The next sequence number expected.
     pub next_seq: u64,
-    /// Sequence numbers that never arrived.
+    /// Sequence numbers that never arrived, unexplained (a lossless transport has none).
     pub missing: u64,
+    /// Sequence numbers lost when the buffer restarted: received by the buffer that died
+    /// after its last snapshot, or in flight to it.
+    #[serde(default)]
+    pub lost_in_restart: u64,
 }
 
 /// The buffer's counters: kept beside the replay snapshot and written as its report.
@@ -49,6 +53,13 @@ pub struct BufferReport {
     pub success_first30: Option<f64>,
     pub success_last30: Option<f64>,
     pub streams: Vec<StreamCount>,
+    /// Every stream's `lost_in_restart`, summed.
+    #[serde(default)]
+    pub lost_in_restarts: u64,
+    /// Per restarted buffer incarnation: the messages lost when it took over (the sum of the
+    /// gaps before each stream's first message to it).
+    #[serde(default)]
+    pub restart_losses: BTreeMap<u32, u64>,
     pub inserted: u64,
     pub relabelled: u64,
     pub sampled: u64,
@@ -61,6 +72,7 @@ pub struct BufferReport {
 }
 
 impl BufferReport {
+    /// Messages that never arrived, unexplained (not lost to a restart of the buffer).
     pub fn lost(&self) -> u64 {
         self.streams.iter().map(|s| s.missing).sum()
     }
@@ -92,10 +104,15 @@ pub(super) struct BufferRole {
     pub(super) outcomes: Vec<bool>,
     /// The snapshot being written in the background, if one is.
     writer: Option<JoinHandle<Result<()>>>,
+    /// How many times the buffer was started before in the run.
+    incarnation: u32,
+    /// The streams this process has heard from: in a restarted buffer, the gap before a
+    /// stream's first message here is what the restart lost.
+    heard: BTreeSet<(u32, u32)>,
 }
 
 impl BufferRole {
-    pub(super) fn new(config: &RunConfig) -> Result<Self> {
+    pub(super) fn new(config: &RunConfig, incarnation: u32) -> Result<Self> {
         let serving = Serving {
             push_reward: config.push_reward,
             sampled: config
@@ -112,6 +129,8 @@ impl BufferRole {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0xb0ff),
             outcomes: Vec::new(),
             writer: None,
+            incarnation,
+            heard: BTreeSet::new(),
         })
     }
 
@@ -211,7 +230,17 @@ impl BufferRole {
                 origin.seq
             );
         }
-        count.missing += origin.seq - count.next_seq;
+        let gap = origin.seq - count.next_seq;
+        if self.heard.insert(key) && self.incarnation > 0 {
+            count.lost_in_restart += gap;
+            *self
+                .report
+                .restart_losses
+                .entry(self.incarnation)
+                .or_default() += gap;
+        } else {
+            count.missing += gap;
+        }
         count.next_seq = origin.seq + 1;
         Ok(self.streams.get_mut(&key).expect("inserted"))
     }
@@ -280,6 +309,7 @@ impl BufferRole {
         self.report.relabelled = stats.relabelled;
         self.report.sampled = stats.sampled;
         self.report.streams = self.streams.values().map(|(c, _)| c.clone()).collect();
+        self.report.lost_in_restarts = self.report.streams.iter().map(|s| s.lost_in_restart).sum();
         let n = self.outcomes.len();
         self.report.success_first30 = success(&self.outcomes[..n.min(SUCCESS_WINDOW)]);
         self.report.success_last30 = success(&self.outcomes[n.saturating_sub(SUCCESS_WINDOW)..]);

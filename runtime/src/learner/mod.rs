@@ -13,7 +13,7 @@ use anyhow::{Result, bail};
 use experience::Transition;
 use learner::checkpoint::config_hash;
 use learner::{Checkpoint, Manifest, Sample, SavedNets, Trainer};
-use mcaplog::RunLog;
+use mcaplog::{LogLevel, RunLog};
 use policy::{grasp_label, push_label};
 use qnet::{NetInput, QNets};
 use serde::{Deserialize, Serialize};
@@ -44,7 +44,8 @@ pub struct LearnerReport {
     /// Requests the buffer answered with no items (none of their primitive stored yet).
     #[serde(default)]
     pub empty_batches: u64,
-    /// Batches answering a dead predecessor's requests, skipped.
+    /// Batches answering a dead predecessor's requests, or requests given up when the
+    /// buffer restarted, skipped.
     #[serde(default)]
     pub stale_batches: u64,
     /// Updates a dead predecessor took after the checkpoint this learner resumed from,
@@ -110,6 +111,13 @@ pub fn run(
                 } else {
                     role.report.stale_batches += 1;
                 }
+            }
+            Some(Message::BufferStarted(incarnation)) => {
+                let lost = asked.forget();
+                log.log_line(
+                    LogLevel::Warning,
+                    &format!("buffer {incarnation} started: asking again for {lost} batches"),
+                )?;
             }
             Some(other) => bail!("the batches topic carried {other:?}"),
             None => std::thread::sleep(Duration::from_millis(1)),

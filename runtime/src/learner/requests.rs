@@ -13,8 +13,8 @@ const IN_FLIGHT: usize = 2;
 const COUNTER: u64 = (1 << 48) - 1;
 
 /// The sample requests sent and not yet answered, oldest first. Ids carry the learner's
-/// incarnation in their top bits, so a restarted learner knows the answers to its
-/// predecessor's requests.
+/// incarnation in their top bits, so a restarted learner never takes the answers to its
+/// predecessor's requests for its own.
 pub(super) struct Requests {
     next: u64,
     in_flight: VecDeque<u64>,
@@ -49,15 +49,22 @@ impl Requests {
         Ok(())
     }
 
-    /// Whether `batch` answers one of this learner's requests (else a predecessor's), which
-    /// must be the oldest.
+    /// Whether `batch` answers a request in flight (else a predecessor's, or one forgotten
+    /// when the buffer restarted), which must be the oldest.
     pub(super) fn answered(&mut self, batch: &BatchMessage) -> Result<bool> {
-        if batch.request >> 48 != self.next >> 48 {
+        if !self.in_flight.contains(&batch.request) {
             return Ok(false);
         }
         if self.in_flight.pop_front() != Some(batch.request) {
             bail!("the buffer answered request {} out of order", batch.request);
         }
         Ok(true)
+    }
+
+    /// Gives up on the requests in flight (the buffer that had them died); how many.
+    pub(super) fn forget(&mut self) -> usize {
+        let lost = self.in_flight.len();
+        self.in_flight.clear();
+        lost
     }
 }

@@ -1,9 +1,8 @@
 //! Supervision of a run's roles: starting each as a child process (or a thread), noticing
-//! when one exits, restarting a crashed actor as its next incarnation, stopping roles of one
+//! when one exits, restarting a crashed role as its next incarnation, stopping roles of one
 //! kind in order, killing what does not stop, and the faults it saw.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -12,19 +11,25 @@ use mcaplog::{LogLevel, RunLog};
 use serde::{Deserialize, Serialize};
 use wire::{ChannelTransport, Control, Message, Outbox, Role};
 
-use crate::actor::ActorId;
 use crate::config::RunConfig;
 use crate::role::{RoleId, StartFrom, run_role};
 use crate::run_dir::RunDir;
 use crate::worker::Worker;
 use crate::{Lifeline, write_json};
 
+mod fault;
+pub use fault::Fault;
+use fault::last_error;
+
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
 const MAX_RESTARTS: u32 = 10;
-/// Crashes of the learner it restarts before it gives up.
-const MAX_LEARNER_RESTARTS: u32 = 3;
+/// Crashes of the learner, or of the buffer, it restarts before it gives up.
+const MAX_ROLE_RESTARTS: u32 = 3;
 /// How a role killed for its silence is described.
 const HUNG: &str = "sent no status report";
+/// How long the buffer or the learner may be silent before the roles that wait on it are
+/// not judged by their own silence (they report four times a second).
+const QUIET: Duration = Duration::from_secs(1);
 /// How long a role may take to stop once told to.
 const STOP_TIMEOUT: Duration = Duration::from_secs(120);
 
@@ -64,7 +69,9 @@ pub struct Supervisor {
     /// Every role that failed, in order.
     pub faults: Vec<Fault>,
     started: Instant,
-    learner_restarts: u32,
+    /// The buffer and the learner now running (their latest incarnations).
+    buffer: RoleId,
+    learner: RoleId,
     /// The newest weight version published when the learner last died.
     weights_after: u64,
 }
@@ -81,7 +88,8 @@ impl Supervisor {
             crashes: BTreeMap::new(),
             faults: Vec::new(),
             started: Instant::now(),
-            learner_restarts: 0,
+            buffer: RoleId::Buffer(0),
+            learner: RoleId::Learner(0),
             weights_after: 0,
         }
     }
@@ -126,6 +134,9 @@ impl Supervisor {
                             .args(["--incarnation", &incarnation.to_string()])
                             .args(["--weights-after", &from.weights_after.to_string()]);
                     }
+                    RoleId::Buffer(incarnation) if incarnation > 0 => {
+                        command.args(["--incarnation", &incarnation.to_string()]);
+                    }
                     _ => {}
                 }
                 let log = self.dir.log(&spec.name());
@@ -168,13 +179,18 @@ impl Supervisor {
         self.write_processes()
     }
 
-    /// Whether `spec` starts from the run directory's state, and the weight version a
-    /// restarted learner's must pass.
+    /// Whether `spec` starts from the run directory's state (a restarted buffer or learner
+    /// always does: its newest snapshot or checkpoint), and the weight version a restarted
+    /// learner's must pass.
     fn start_from(&self, spec: RoleId) -> StartFrom {
         match spec {
             RoleId::Learner(incarnation) if incarnation > 0 => StartFrom {
                 resume: true,
                 weights_after: self.weights_after,
+            },
+            RoleId::Buffer(incarnation) if incarnation > 0 => StartFrom {
+                resume: true,
+                weights_after: 0,
             },
             _ => StartFrom {
                 resume: self.resume,
@@ -183,9 +199,14 @@ impl Supervisor {
         }
     }
 
+    /// The buffer now running (its latest incarnation).
+    pub fn buffer(&self) -> RoleId {
+        self.buffer
+    }
+
     /// The learner now running (its latest incarnation).
     pub fn learner(&self) -> RoleId {
-        RoleId::Learner(self.learner_restarts)
+        self.learner
     }
 
     /// The next incarnation of each actor index a resumed run starts: one past any that ran
@@ -228,8 +249,8 @@ impl Supervisor {
         write_json(&self.dir.processes(), &entries)
     }
 
-    /// Deals with roles that exited: restarts a crashed actor; an exited learner or buffer
-    /// ends the run with its reason.
+    /// Deals with roles that exited: restarts each as its next incarnation, until one fails
+    /// too often (then the run ends with the reason).
     /// `weights_version`: the newest the learner reported, which a restarted one passes.
     pub fn check(&mut self, failures: &[String], weights_version: u64) -> Result<()> {
         let mut exited = Vec::new();
@@ -241,42 +262,7 @@ impl Supervisor {
         }
         for (spec, outcome) in exited {
             let RoleId::Actor(id) = spec else {
-                let log = self.dir.log(&spec.name());
-                let hung = outcome.as_ref().err().filter(|why| why.contains(HUNG));
-                let why = hung
-                    .cloned()
-                    .or_else(|| {
-                        failures
-                            .iter()
-                            .find(|f| f.starts_with(&spec.name()))
-                            .cloned()
-                    })
-                    .or_else(|| last_error(&log))
-                    .or_else(|| outcome.err())
-                    .unwrap_or_else(|| "exited before it was told to".into());
-                let RoleId::Learner(incarnation) = spec else {
-                    self.record_fault(spec.name(), &why, false);
-                    bail!(
-                        "the {} cannot continue: {why} (see {})",
-                        spec.name(),
-                        log.display()
-                    );
-                };
-                let restart = incarnation < MAX_LEARNER_RESTARTS;
-                self.record_fault(spec.name(), &why, restart);
-                if !restart {
-                    bail!(
-                        "the learner failed {} times; giving up: {why} (see {})",
-                        incarnation + 1,
-                        log.display()
-                    );
-                }
-                let message = format!("the {} {why}; starting it again", spec.name());
-                eprintln!("{message}");
-                self.log.log_line(LogLevel::Warning, &message)?;
-                self.learner_restarts = incarnation + 1;
-                self.weights_after = weights_version;
-                self.start(RoleId::Learner(incarnation + 1))?;
+                self.restart_singleton(spec, outcome, failures, weights_version)?;
                 continue;
             };
             let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
@@ -290,33 +276,99 @@ impl Supervisor {
             if crashes > MAX_RESTARTS {
                 bail!("actor {} crashed {crashes} times; giving up", id.index);
             }
-            self.start(RoleId::Actor(ActorId {
-                index: id.index,
-                incarnation: id.incarnation + 1,
-            }))?;
+            self.start(spec.next_incarnation())?;
         }
         Ok(())
     }
 
+    /// Starts the buffer or the learner again from its newest saved state, after it exited
+    /// (or was killed for its silence); gives up on the run after [`MAX_ROLE_RESTARTS`].
+    fn restart_singleton(
+        &mut self,
+        spec: RoleId,
+        outcome: Result<(), String>,
+        failures: &[String],
+        weights_version: u64,
+    ) -> Result<()> {
+        let log = self.dir.log(&spec.name());
+        let hung = outcome.as_ref().err().filter(|why| why.contains(HUNG));
+        let why = hung
+            .cloned()
+            .or_else(|| {
+                failures
+                    .iter()
+                    .find(|f| f.starts_with(&spec.name()))
+                    .cloned()
+            })
+            .or_else(|| last_error(&log))
+            .or_else(|| outcome.err())
+            .unwrap_or_else(|| "exited before it was told to".into());
+        let restart = spec.incarnation() < MAX_ROLE_RESTARTS;
+        self.record_fault(spec.name(), &why, restart);
+        if !restart {
+            bail!(
+                "the {} failed {} times; giving up: {why} (see {})",
+                spec.kind(),
+                spec.incarnation() + 1,
+                log.display()
+            );
+        }
+        let message = format!("the {} {why}; starting it again", spec.name());
+        eprintln!("{message}");
+        self.log.log_line(LogLevel::Warning, &message)?;
+        let next = spec.next_incarnation();
+        match next {
+            RoleId::Learner(_) => {
+                self.learner = next;
+                self.weights_after = weights_version;
+            }
+            _ => self.buffer = next,
+        }
+        self.start(next)
+    }
+
     /// Kills every role process that has sent no status report for `timeout` (since it
     /// started, when it never did): the next [`Supervisor::check`] handles it as a crash.
+    /// Roles wait on those upstream (everyone on the buffer; actors also on the learner,
+    /// whose pace lets their steps in): while one upstream is quiet, those downstream are
+    /// not judged, and their silence counts from its latest start.
     /// (A thread cannot be killed; the threads wiring is for tests and small runs.)
     pub fn kill_silent(&mut self, last_heard: &BTreeMap<String, Instant>, timeout: Duration) {
-        for slot in self
-            .slots
-            .iter_mut()
-            .filter(|s| !s.done && s.hung.is_none())
-        {
-            let heard = last_heard
+        let silence = |slot: &Slot, since: Instant| {
+            last_heard
                 .get(&slot.spec.reporter())
-                .map_or(slot.started, |&at| at.max(slot.started));
-            if heard.elapsed() > timeout && slot.worker.pid().is_some() {
-                slot.worker.kill();
-                slot.hung = Some(format!(
-                    "{HUNG} for {:.0} s and was killed",
-                    heard.elapsed().as_secs_f64()
-                ));
+                .map_or(since, |&at| at.max(since))
+                .elapsed()
+        };
+        let mut upstream_started = None;
+        for kind in [Role::Buffer, Role::Learner, Role::Actor] {
+            for slot in self
+                .slots
+                .iter_mut()
+                .filter(|s| !s.done && s.hung.is_none() && s.spec.kind() == kind)
+            {
+                let since = upstream_started.map_or(slot.started, |up| slot.started.max(up));
+                let silent = silence(slot, since);
+                if silent > timeout && slot.worker.pid().is_some() {
+                    slot.worker.kill();
+                    slot.hung = Some(format!(
+                        "{HUNG} for {:.0} s and was killed",
+                        silent.as_secs_f64()
+                    ));
+                }
             }
+            let live: Vec<&Slot> = self
+                .slots
+                .iter()
+                .filter(|s| !s.done && s.spec.kind() == kind)
+                .collect();
+            if live
+                .iter()
+                .any(|s| s.hung.is_some() || silence(s, s.started) > QUIET)
+            {
+                return;
+            }
+            upstream_started = live.iter().map(|s| s.started).chain(upstream_started).max();
         }
     }
 
@@ -363,35 +415,4 @@ impl Supervisor {
             slot.done = true;
         }
     }
-}
-
-/// The error a failed role process printed last (its log's last "Error:" paragraph).
-fn last_error(log: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(log).ok()?;
-    let start = text.rfind("Error: ")?;
-    let error = text[start + "Error: ".len()..].trim();
-    // anyhow's backtrace, if any, follows a blank line.
-    Some(
-        error
-            .split("\n\n")
-            .next()
-            .unwrap_or(error)
-            .replace('\n', " "),
-    )
-}
-
-/// A role that failed during a run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Fault {
-    /// The role's name (`actor-0-1`, `learner`, ...).
-    pub role: String,
-    /// Seconds from the launcher's start to when it noticed.
-    pub at_s: f64,
-    pub cause: String,
-    /// Whether it was started again and the run went on (a joined host: it came back).
-    pub restarted: bool,
-    /// For an actor: the messages of its stream that never reached the buffer (filled in
-    /// from the buffer's counts when the run ends).
-    #[serde(default)]
-    pub lost_messages: Option<u64>,
 }
