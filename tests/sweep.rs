@@ -131,9 +131,8 @@ fn outputs(sweep_dir: &Path) -> String {
 }
 
 /// The episodes a running run has ended, from its launcher's progress records (0 before
-/// the first). Waiting for one means every role is up: a run killed while one of its roles
-/// creates its shared-memory services cannot be resumed today (iceoryx2 leaves the service
-/// "hanging in creation", which `train`'s stale cleanup does not remove).
+/// the first). Waiting for one means every role is up, so a kill lands mid-run (the kills
+/// during start-up are tests/startup.rs's).
 fn episodes(run_dir: &Path) -> u64 {
     mcaplog::json_messages(run_dir.join("launcher.mcap"), "/launcher/progress")
         .ok()

@@ -393,6 +393,9 @@ impl Supervisor {
                         "did not stop within {STOP_TIMEOUT:?} and was killed"
                     ));
                 }
+                // A role that subscribed after the order was sent (one just started) gets
+                // it from the topic's history only now.
+                control.refresh()?;
                 std::thread::sleep(Duration::from_millis(20));
             };
             slot.done = true;

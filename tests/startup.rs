@@ -1,0 +1,116 @@
+//! A run killed at any moment of its start-up (or just after it finished), every process of
+//! it at once, continues with `--resume`: the shared memory its processes were creating is
+//! cleaned up, and a resumed run whose budget is already spent stops at once.
+
+use std::os::unix::process::CommandExt;
+use std::path::Path;
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+const RUN: &str = "k";
+
+fn train(logs: &Path, extra: &[&str]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_pushgrasp"));
+    command
+        .args(["train", "--config", "configs/stage1.toml", "--run-id", RUN])
+        .args(["--actors", "1", "--episodes", "20"])
+        .arg("--logs")
+        .arg(logs)
+        .args(extra)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    command
+}
+
+/// How many roles the run's processes file lists.
+fn roles_listed(run: &Path) -> usize {
+    std::fs::read(run.join("processes.json"))
+        .ok()
+        .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
+        .and_then(|entries| entries.as_array().map(Vec::len))
+        .unwrap_or(0)
+}
+
+fn wait(child: &mut Child, timeout: Duration, what: &str) -> ExitStatus {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = Command::new("kill")
+                .args(["-9", "--", &format!("-{}", child.id())])
+                .status();
+            panic!("{what} did not end within {timeout:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Starts a run in a process group of its own, kills the whole group with SIGKILL once
+/// `moment` holds of its run directory, then resumes it: the resumed run must complete.
+fn killed_then_resumed(what: &str, moment: impl Fn(&Path) -> bool) {
+    let logs = tempfile::tempdir().unwrap();
+    let run = logs.path().join(RUN);
+    let mut first = train(logs.path(), &[]).process_group(0).spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !moment(&run) {
+        assert!(
+            first.try_wait().unwrap().is_none() || moment(&run),
+            "{what}: the run ended before the moment"
+        );
+        assert!(Instant::now() < deadline, "{what}: the moment never came");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    // (A run that has just finished may be gone already.)
+    let _ = Command::new("kill")
+        .args(["-9", "--", &format!("-{}", first.id())])
+        .stderr(Stdio::null())
+        .status();
+    wait(&mut first, Duration::from_secs(10), "the killed run");
+    // Its roles, killed with it, are gone before the resume looks for them.
+    std::thread::sleep(Duration::from_millis(200));
+
+    let mut resumed = train(logs.path(), &["--resume"])
+        .process_group(0)
+        .spawn()
+        .unwrap();
+    // Well within the 120 s a role is given to stop before it is killed.
+    let status = wait(&mut resumed, Duration::from_secs(90), "the resumed run");
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(resumed.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    assert!(status.success(), "{what}: --resume failed: {stderr}");
+    assert!(
+        !stderr.contains("did not stop"),
+        "{what}: a role missed its order to stop: {stderr}"
+    );
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
+    assert!(
+        summary["buffer"]["episodes"].as_u64().unwrap() >= 20,
+        "{what}: {}",
+        summary["buffer"]
+    );
+}
+
+#[test]
+fn a_run_killed_while_it_starts_or_just_after_it_ends_resumes() {
+    killed_then_resumed("killed once its config was written", |run| {
+        run.join("config.toml").exists()
+    });
+    killed_then_resumed("killed while the buffer starts", |run| {
+        roles_listed(run) >= 1
+    });
+    killed_then_resumed("killed while the learner starts", |run| {
+        roles_listed(run) >= 2
+    });
+    killed_then_resumed("killed while the actor starts", |run| {
+        roles_listed(run) >= 3
+    });
+    killed_then_resumed("killed once it finished", |run| {
+        run.join("summary.json").exists()
+    });
+}
