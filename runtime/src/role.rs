@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -206,5 +207,9 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
         resume: args.resume,
         weights_after: args.weights_after,
     };
-    run_role(&transport, id, &config, &dir, from, &Lifeline::child())
+    let lifeline = Lifeline::child(
+        dir.launcher_alive(),
+        Duration::from_secs_f64(config.run.heartbeat_timeout_s),
+    );
+    run_role(&transport, id, &config, &dir, from, &lifeline)
 }

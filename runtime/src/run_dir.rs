@@ -81,6 +81,12 @@ impl RunDir {
         self.path.join(format!("{name}.mcap"))
     }
 
+    /// The launcher's heartbeat (`launcher.alive`): touched every second while it supervises;
+    /// its roles stop by themselves when it grows stale (a hung launcher).
+    pub fn launcher_alive(&self) -> PathBuf {
+        self.path.join("launcher.alive")
+    }
+
     /// Which process plays which role now (`processes.json`).
     pub fn processes(&self) -> PathBuf {
         self.path.join("processes.json")

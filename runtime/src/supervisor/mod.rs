@@ -74,6 +74,8 @@ pub struct Supervisor {
     learner: RoleId,
     /// The newest weight version published when the learner last died.
     weights_after: u64,
+    /// When the launcher's heartbeat file was last touched.
+    last_beat: Option<Instant>,
 }
 
 impl Supervisor {
@@ -91,6 +93,7 @@ impl Supervisor {
             buffer: RoleId::Buffer(0),
             learner: RoleId::Learner(0),
             weights_after: 0,
+            last_beat: None,
         }
     }
 
@@ -111,6 +114,7 @@ impl Supervisor {
 
     /// Starts a role: a child process running `pushgrasp role`, or a thread of this one.
     pub fn start(&mut self, spec: RoleId) -> Result<()> {
+        beat(&self.dir, &mut self.last_beat)?;
         let worker = match &self.wiring {
             Wiring::Processes { namespace } => {
                 let mut command = Command::new(std::env::current_exe()?);
@@ -253,6 +257,7 @@ impl Supervisor {
     /// too often (then the run ends with the reason).
     /// `weights_version`: the newest the learner reported, which a restarted one passes.
     pub fn check(&mut self, failures: &[String], weights_version: u64) -> Result<()> {
+        beat(&self.dir, &mut self.last_beat)?;
         let mut exited = Vec::new();
         for slot in self.slots.iter_mut().filter(|s| !s.done) {
             if let Some(outcome) = slot.worker.finished() {
@@ -396,6 +401,7 @@ impl Supervisor {
                 // A role that subscribed after the order was sent (one just started) gets
                 // it from the topic's history only now.
                 control.refresh()?;
+                beat(&self.dir, &mut self.last_beat)?;
                 std::thread::sleep(Duration::from_millis(20));
             };
             slot.done = true;
@@ -418,4 +424,16 @@ impl Supervisor {
             slot.done = true;
         }
     }
+}
+
+/// Touches the heartbeat file the roles watch (once a second): while it stays fresh, the
+/// launcher is alive and supervising.
+fn beat(dir: &RunDir, last: &mut Option<Instant>) -> Result<()> {
+    if last.is_some_and(|at| at.elapsed() < Duration::from_secs(1)) {
+        return Ok(());
+    }
+    let path = dir.launcher_alive();
+    std::fs::write(&path, b"").with_context(|| format!("writing {}", path.display()))?;
+    *last = Some(Instant::now());
+    Ok(())
 }

@@ -1,6 +1,7 @@
-//! A run killed at any moment of its start-up (or just after it finished), every process of
-//! it at once, continues with `--resume`: the shared memory its processes were creating is
-//! cleaned up, and a resumed run whose budget is already spent stops at once.
+//! The launcher's own faults. A run killed at any moment of its start-up (or just after it
+//! finished), every process of it at once, continues with `--resume`: the shared memory its
+//! processes were creating is cleaned up, and a resumed run whose budget is already spent
+//! stops at once. A hung launcher's roles stop by themselves, saving their state.
 
 use std::os::unix::process::CommandExt;
 use std::path::Path;
@@ -9,13 +10,24 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+#[path = "common/stage1.rs"]
+mod stage1;
+
 const RUN: &str = "k";
 
+/// `train` of a 1-actor stage-1 run of 20 episodes.
 fn train(logs: &Path, extra: &[&str]) -> Command {
+    let mut command = train_with(Path::new("configs/stage1.toml"), logs, extra);
+    command.args(["--episodes", "20"]);
+    command
+}
+
+fn train_with(config: &Path, logs: &Path, extra: &[&str]) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_pushgrasp"));
     command
-        .args(["train", "--config", "configs/stage1.toml", "--run-id", RUN])
-        .args(["--actors", "1", "--episodes", "20"])
+        .args(["train", "--run-id", RUN, "--actors", "1"])
+        .arg("--config")
+        .arg(config)
         .arg("--logs")
         .arg(logs)
         .args(extra)
@@ -58,10 +70,11 @@ fn killed_then_resumed(what: &str, moment: impl Fn(&Path) -> bool) {
     let mut first = train(logs.path(), &[]).process_group(0).spawn().unwrap();
     let deadline = Instant::now() + Duration::from_secs(120);
     while !moment(&run) {
-        assert!(
-            first.try_wait().unwrap().is_none() || moment(&run),
-            "{what}: the run ended before the moment"
-        );
+        if first.try_wait().unwrap().is_some() && !moment(&run) {
+            let mut stderr = String::new();
+            std::io::Read::read_to_string(first.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+            panic!("{what}: the run ended before the moment: {stderr}");
+        }
         assert!(Instant::now() < deadline, "{what}: the moment never came");
         std::thread::sleep(Duration::from_millis(1));
     }
@@ -113,4 +126,75 @@ fn a_run_killed_while_it_starts_or_just_after_it_ends_resumes() {
     killed_then_resumed("killed once it finished", |run| {
         run.join("summary.json").exists()
     });
+}
+
+/// The pids of the roles the run's processes file lists.
+fn role_pids(run: &Path) -> Vec<u64> {
+    std::fs::read(run.join("processes.json"))
+        .ok()
+        .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
+        .and_then(|entries| {
+            entries
+                .as_array()
+                .map(|e| e.iter().filter_map(|e| e["pid"].as_u64()).collect())
+        })
+        .unwrap_or_default()
+}
+
+/// Whether process `pid` runs (a zombie has ended).
+fn alive(pid: u64) -> bool {
+    std::fs::read(format!("/proc/{pid}/cmdline")).is_ok_and(|cmdline| !cmdline.is_empty())
+}
+
+#[test]
+fn the_roles_of_a_hung_launcher_stop_by_themselves_and_the_run_resumes() {
+    let logs = tempfile::tempdir().unwrap();
+    let run = logs.path().join(RUN);
+    let impatient = stage1::stage1_with(
+        logs.path(),
+        "impatient",
+        &[("run.heartbeat_timeout_s", toml::Value::Float(3.0))],
+    );
+    let mut launcher = train_with(&impatient, logs.path(), &["--episodes", "100000"])
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while roles_listed(&run) < 3 {
+        assert!(Instant::now() < deadline, "the roles never started");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    let roles = role_pids(&run);
+    let stop = |signal: &str| {
+        Command::new("kill")
+            .args([signal, &launcher.id().to_string()])
+            .status()
+            .unwrap()
+    };
+    assert!(stop("-STOP").success());
+    // Its heartbeat goes stale after 3 s; every role looks once a second, then saves.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while roles.iter().any(|&pid| alive(pid)) {
+        assert!(
+            Instant::now() < deadline,
+            "roles of a hung launcher still run after 60 s"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    for role in ["buffer", "learner", "actor-0-0"] {
+        let log = std::fs::read_to_string(run.join(format!("{role}.log"))).unwrap();
+        assert!(
+            log.contains("launcher has not beaten"),
+            "{role}.log:\n{log}"
+        );
+        assert!(run.join(format!("reports/{role}.json")).exists(), "{role}");
+    }
+    stop("-KILL");
+    launcher.wait().unwrap();
+
+    let mut resumed = train_with(&impatient, logs.path(), &["--resume", "--episodes", "40"])
+        .spawn()
+        .unwrap();
+    let status = wait(&mut resumed, Duration::from_secs(120), "the resumed run");
+    assert!(status.success());
 }
