@@ -2,7 +2,7 @@
 CARGO ?= cargo
 SHARED ?= ../shared
 
-.PHONY: run test bench lint check-wgpu fmt arrangements
+.PHONY: run test bench soak lint check-wgpu fmt arrangements
 
 # The main job: a scaled-down stage-1 training run (goal-conditioned grasping) on the CPU:
 # a buffer, a learner and 2 actor processes over shared memory, one to two minutes after the
@@ -32,6 +32,11 @@ bench:
 	$(CARGO) run --release -- bench buffer
 	$(CARGO) run --release -- bench e2e
 	$(CARGO) run --release -- bench logging
+
+# Memory over a long run: a stage-3 run 20 minutes past a full replay, every process's
+# resident memory sampled; its growth over the last 15 minutes beside a 5% bound.
+soak:
+	$(CARGO) run --release -- bench soak
 
 lint:
 	$(CARGO) fmt --all -- --check

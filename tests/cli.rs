@@ -316,3 +316,32 @@ fn bench_transport_reports_every_figure_of_a_short_run() {
         );
     }
 }
+
+#[test]
+fn bench_soak_samples_every_process_of_a_short_run_past_its_full_replay() {
+    let stdout = pushgrasp_ok(&[
+        "bench",
+        "soak",
+        "--json",
+        "--actors",
+        "1",
+        "--capacity",
+        "10",
+        "--minutes",
+        "0.2",
+        "--every-s",
+        "1",
+    ]);
+    let last = stdout.lines().last().expect("a line of figures");
+    let figures: serde_json::Value = serde_json::from_str(last).unwrap();
+    assert_eq!(figures["replay_full"], true, "{figures}");
+    for process in ["launcher", "buffer", "learner", "actor-0-0"] {
+        let start = figures[format!("rss_mb_{process}_start")].as_f64();
+        assert!(start.is_some_and(|mb| mb > 1.0), "{process}: {figures}");
+        assert!(
+            figures[format!("rss_growth_pct_{process}")].is_number(),
+            "{process}: {figures}"
+        );
+    }
+    assert!(figures["rss_growth_pct_max"].is_number(), "{figures}");
+}

@@ -19,6 +19,7 @@ mod logging;
 mod peer;
 mod python;
 mod replay;
+mod soak;
 mod transport;
 
 #[derive(Subcommand)]
@@ -44,6 +45,9 @@ pub enum BenchCommand {
     /// The link between hosts: real-size steps through Zenoh over loopback beside a plain
     /// TCP socket, and the weights reaching 4 joined hosts.
     Hosts(hosts::HostsBenchArgs),
+    /// Memory over a long run: every process's resident memory while a stage-3 run goes on
+    /// for 20 minutes after its replay is full, and its growth beside a 5% bound.
+    Soak(soak::SoakBenchArgs),
 }
 
 #[derive(Args)]
@@ -110,7 +114,22 @@ pub fn run(command: BenchCommand) -> Result<()> {
         BenchCommand::Logging(args) => logging::bench_logging(&args),
         BenchCommand::Transport(args) => transport::bench_transport(&args),
         BenchCommand::Hosts(args) => hosts::bench_hosts(&args),
+        BenchCommand::Soak(args) => soak::bench_soak(&args),
     }
+}
+
+/// A size line ("VmRSS:", "VmHWM:") of `/proc/<process>/status` in MB (`process`: a pid or
+/// `self`), where there is one.
+fn status_mb(process: &str, field: &str) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{process}/status")).ok()?;
+    let line = status.lines().find(|line| line.starts_with(field))?;
+    let kb: f64 = line[field.len()..]
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb / 1024.0)
 }
 
 fn median(mut values: Vec<f64>) -> f64 {

@@ -29,7 +29,7 @@ use sim::{Action, Heightmaps, PixelGrid, Primitive};
 mod real;
 
 use super::python::{default_python, script_figures};
-use super::{median, print_figures, timed};
+use super::{median, print_figures, status_mb, timed};
 
 /// Items per sampled batch, ours and cpprb's.
 const BATCH: usize = 512;
@@ -93,7 +93,7 @@ pub fn bench_buffer(args: &BufferBenchArgs) -> Result<()> {
         }
         ours.push((exp, measured.learner_steps_per_s));
     }
-    if let Some(peak) = status_mb("VmHWM:") {
+    if let Some(peak) = status_mb("self", "VmHWM:") {
         figures.insert("peak_rss_mb".into(), (peak.round() as u64).into());
     }
 
@@ -169,7 +169,7 @@ fn bench_ours(capacity: usize, steps: usize) -> Result<OurFigures> {
         inserted?;
         insert_time += time;
     }
-    let rss = status_mb("VmRSS:");
+    let rss = status_mb("self", "VmRSS:");
 
     // A learner step: sample a batch, read its keys and weights, update its priorities.
     // Returns the times of the sample and of the updates.
@@ -228,19 +228,6 @@ fn transition(grid: PixelGrid, i: u64) -> StoredTransition {
         grasped: i.is_multiple_of(3).then_some(1),
         next_value: Some(0.5),
     })
-}
-
-/// A size line of /proc/self/status ("VmRSS:", "VmHWM:") in MB, where there is one.
-fn status_mb(field: &str) -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|line| line.starts_with(field))?;
-    let kb: f64 = line[field.len()..]
-        .trim()
-        .trim_end_matches("kB")
-        .trim()
-        .parse()
-        .ok()?;
-    Some(kb / 1024.0)
 }
 
 /// Runs [`CPPRB_SCRIPT`]: its figures, named as ours (`insert_per_s_2p17`, ...), with

@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use serde_json::{Map, Value};
 use sim::{Action, Heightmaps, Primitive, SimConfig};
 
-use super::status_mb;
+use crate::status_mb;
 use crate::{median, rendered_scene, timed};
 
 /// The learner's batch size (the stage configs').
@@ -102,7 +102,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         format!("insert_real_steps_per_s_{side}"),
         steps as f64 / fill_s,
     );
-    if let Some(rss) = status_mb("VmRSS:") {
+    if let Some(rss) = status_mb("self", "VmRSS:") {
         put(format!("rss_mb_{suffix}"), rss);
     }
 
@@ -139,7 +139,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         loaded.stats().grasp_len
     );
     put(format!("resume_s_{suffix}"), time.as_secs_f64());
-    if let Some(peak) = status_mb("VmHWM:") {
+    if let Some(peak) = status_mb("self", "VmHWM:") {
         put(format!("peak_rss_mb_{suffix}"), peak);
     }
     Ok(figures)
