@@ -291,8 +291,7 @@ fn bench_transport_reports_every_figure_of_a_short_run() {
         "--latency-messages",
         "4",
     ]);
-    let last = stdout.lines().last().expect("a line of figures");
-    let figures: serde_json::Value = serde_json::from_str(last).unwrap();
+    let figures = last_line_figures(&stdout);
     let rate = |key: &str| figures[key].as_f64();
     for publishers in [1, 2, 4] {
         for via in ["iceoryx2", "unix_socket"] {
@@ -332,8 +331,7 @@ fn bench_soak_samples_every_process_of_a_short_run_past_its_full_replay() {
         "--every-s",
         "1",
     ]);
-    let last = stdout.lines().last().expect("a line of figures");
-    let figures: serde_json::Value = serde_json::from_str(last).unwrap();
+    let figures = last_line_figures(&stdout);
     assert_eq!(figures["replay_full"], true, "{figures}");
     for process in ["launcher", "buffer", "learner", "actor-0-0"] {
         let start = figures[format!("rss_mb_{process}_start")].as_f64();
@@ -344,4 +342,10 @@ fn bench_soak_samples_every_process_of_a_short_run_past_its_full_replay() {
         );
     }
     assert!(figures["rss_growth_pct_max"].is_number(), "{figures}");
+}
+
+/// The JSON object of figures a `bench ... --json` prints as its last line.
+fn last_line_figures(stdout: &str) -> serde_json::Value {
+    let last = stdout.lines().last().expect("a line of figures");
+    serde_json::from_str(last).unwrap()
 }

@@ -561,6 +561,22 @@ fn published_versions(logs: &Path, run: &str) -> Vec<u64> {
 /// Starts a 1-actor run of 300 episodes from `config`, lets it train 2 s, sends `role`
 /// `kill`; returns whether the run succeeded once it ended, and the role's pid.
 fn role_fault(config: &Path, logs: &Path, run: &str, role: &str, kill: &str) -> (bool, i32) {
+    fault_once(config, logs, run, role, kill, || {
+        std::thread::sleep(Duration::from_secs(2))
+    })
+}
+
+/// Starts a 1-actor run of 300 episodes from `config`, sends `role` `kill` once its roles
+/// are up and `ready` returns; returns whether the run succeeded once it ended, and the
+/// role's pid.
+fn fault_once(
+    config: &Path,
+    logs: &Path,
+    run: &str,
+    role: &str,
+    kill: &str,
+    ready: impl FnOnce(),
+) -> (bool, i32) {
     let mut child = command_with(
         config,
         logs,
@@ -570,9 +586,8 @@ fn role_fault(config: &Path, logs: &Path, run: &str, role: &str, kill: &str) -> 
     .stderr(Stdio::piped())
     .spawn()
     .expect("pushgrasp starts");
-    let entries = wait_for_processes(logs, run, 3);
-    std::thread::sleep(Duration::from_secs(2));
-    let pid = pid_of(&entries, role);
+    let pid = pid_of(&wait_for_processes(logs, run, 3), role);
+    ready();
     signal(pid, kill);
     let status = wait_exit(&mut child, Duration::from_secs(300));
     (status.success(), pid)
@@ -660,32 +675,20 @@ fn a_hung_actor_is_killed_and_restarted() {
     assert!(!Path::new(&format!("/proc/{actor}")).exists());
 }
 
-/// Starts a 1-actor run of 300 episodes, sends `kill` to its buffer once a snapshot holds 20
-/// episodes, and waits for the run to end: whether it succeeded, and the buffer's pid.
+/// [`fault_once`] on the buffer once a snapshot holds 20 episodes.
 fn buffer_fault(config: &Path, logs: &Path, run: &str, kill: &str) -> (bool, i32) {
-    let mut child = command_with(
-        config,
-        logs,
-        &["--actors", "1", "--episodes", "300", "--run-id", run],
-    )
-    .stdout(Stdio::null())
-    .stderr(Stdio::piped())
-    .spawn()
-    .expect("pushgrasp starts");
-    let buffer = pid_of(&wait_for_processes(logs, run, 3), "buffer");
     let counters = logs.join(run).join("buffer-counters.json");
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while std::fs::read(&counters)
-        .ok()
-        .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
-        .is_none_or(|saved| saved["report"]["episodes"].as_u64() < Some(20))
-    {
-        assert!(Instant::now() < deadline, "no snapshot of 20 episodes");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    signal(buffer, kill);
-    let status = wait_exit(&mut child, Duration::from_secs(300));
-    (status.success(), buffer)
+    fault_once(config, logs, run, "buffer", kill, || {
+        let deadline = Instant::now() + Duration::from_secs(120);
+        while std::fs::read(&counters)
+            .ok()
+            .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
+            .is_none_or(|saved| saved["report"]["episodes"].as_u64() < Some(20))
+        {
+            assert!(Instant::now() < deadline, "no snapshot of 20 episodes");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    })
 }
 
 /// What a run whose buffer was restarted must show: the run reached its budget with no

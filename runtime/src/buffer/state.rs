@@ -106,8 +106,8 @@ pub(super) struct BufferRole {
     writer: Option<JoinHandle<Result<()>>>,
     /// How many times the buffer was started before in the run.
     incarnation: u32,
-    /// The streams this process has heard from: in a restarted buffer, the gap before a
-    /// stream's first message here is what the restart lost.
+    /// The streams a restarted buffer has heard from: the gap before a stream's first
+    /// message here is what the restart lost (the first buffer of a run keeps none).
     heard: BTreeSet<(u32, u32)>,
 }
 
@@ -231,7 +231,7 @@ impl BufferRole {
             );
         }
         let gap = origin.seq - count.next_seq;
-        if self.heard.insert(key) && self.incarnation > 0 {
+        if self.incarnation > 0 && self.heard.insert(key) {
             count.lost_in_restart += gap;
             *self
                 .report
