@@ -273,6 +273,8 @@ pub struct Watch {
     pub progress: Progress,
     failures: Vec<String>,
     last_heard: BTreeMap<String, Instant>,
+    /// When the buffer last said its rate limiter held the actors back.
+    actors_held: Option<Instant>,
 }
 
 impl Watch {
@@ -286,12 +288,18 @@ impl Watch {
             if let Some(name) = reporter(&report) {
                 self.last_heard.insert(name, Instant::now());
             }
+            if let Status::Buffer {
+                holding_back: true, ..
+            } = report
+            {
+                self.actors_held = Some(Instant::now());
+            }
             if let Some(failure) = self.progress.take(report) {
                 self.failures.push(failure);
             }
         }
         let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
-        supervisor.kill_silent(&self.last_heard, timeout);
+        supervisor.kill_silent(&self.last_heard, self.actors_held, timeout);
         supervisor.check(&self.failures, self.progress.weights_version)
     }
 }

@@ -177,6 +177,9 @@ pub enum Status {
         relabelled: u64,
         /// Messages missing from some actor's stream (never expected: lossless transport).
         lost: u64,
+        /// The rate limiter is closed: the actors' steps wait in the transport for the
+        /// learner, so an actor's silence says nothing about its health.
+        holding_back: bool,
     },
     Learner {
         updates: u64,
