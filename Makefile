@@ -2,7 +2,7 @@
 CARGO ?= cargo
 SHARED ?= ../shared
 
-.PHONY: run test bench soak lint check-wgpu fmt arrangements
+.PHONY: run test test-wgpu bench soak lint fmt arrangements
 
 # The main job: a scaled-down stage-1 training run (goal-conditioned grasping) on the CPU:
 # a buffer, a learner and 2 actor processes over shared memory, one to two minutes after the
@@ -10,13 +10,27 @@ SHARED ?= ../shared
 run:
 	$(CARGO) run --release -- train --config configs/stage1.toml
 
-# Every test, built optimised (physics in an unoptimised build is too slow to test). The
-# MCAP files are also read back by the independent Python reader, installed into target/
-# when Python is there (the tests say so and skip that check when it is not).
+# Every test, built optimised (physics in an unoptimised build is too slow to test), in one
+# build with the GPU backend (burn-wgpu; ~30 minutes on two cores the first time): the CPU
+# path's tests, and the GPU path's (tests/wgpu.rs) on this machine's Vulkan device, Mesa's
+# software one (lavapipe) where there is no GPU, installed first when it is missing (as root
+# with apt-get); without one the CPU build's tests run alone, saying so. The MCAP files are
+# also read back by the independent Python reader, installed into target/ when Python is
+# there (the tests say so and skip that check when it is not).
 MCAP_VENV := target/mcap-venv
 test:
 	test -x $(MCAP_VENV)/bin/python3 || { python3 -m venv $(MCAP_VENV) && $(MCAP_VENV)/bin/python3 -m pip install -q mcap mcap-protobuf-support; } || echo "the Python mcap reader is not installed: its cross-check is skipped"
-	$(CARGO) test --release --workspace
+	if tests/vulkan/install.sh; then \
+		$(CARGO) test --release --workspace --features pushgrasp/wgpu; \
+	else \
+		echo "no Vulkan device: the GPU path's tests are skipped"; \
+		$(CARGO) test --release --workspace; \
+	fi
+
+# The GPU path's tests alone.
+test-wgpu:
+	tests/vulkan/install.sh
+	$(CARGO) test --release --features wgpu --test wgpu
 
 # The peers run beside ours when they can be installed (into target/): onnxruntime and numpy
 # beside the nets (bench learner), cpprb beside the replay (bench buffer).
@@ -41,10 +55,6 @@ soak:
 lint:
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
-
-# Type-checks the GPU build (burn-wgpu) without a GPU; building it fully takes ~20 minutes.
-check-wgpu:
-	$(CARGO) check --release --features wgpu
 
 fmt:
 	$(CARGO) fmt --all

@@ -2,7 +2,7 @@
 //! observation and a goal into a decision.
 
 use policy::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
-use qnet::{ActingNets, Geometry, NetInput, QNetConfig, QNetError, QNets};
+use qnet::{ActingNets, Device, Geometry, NetInput, QNetConfig, QNetError, QNets};
 use rand_chacha::ChaCha8Rng;
 use sim::{Heightmaps, ObjectId, Primitive};
 
@@ -38,10 +38,15 @@ pub enum AgentError {
 }
 
 impl Agent {
-    /// Fresh nets of `net` for `side x side` heightmaps on the selected backend.
-    pub fn new(net: &QNetConfig, side: usize, policy: PolicyConfig, mode: Mode) -> Self {
-        let device = qnet::Backend::selected().device();
-        let nets = QNets::new(net, &device);
+    /// Fresh nets of `net` for `side x side` heightmaps on `device`.
+    pub fn new(
+        net: &QNetConfig,
+        side: usize,
+        policy: PolicyConfig,
+        mode: Mode,
+        device: &Device,
+    ) -> Self {
+        let nets = QNets::new(net, device);
         Self {
             acting: ActingNets::new(&nets).expect("fresh nets have an inference form"),
             nets,

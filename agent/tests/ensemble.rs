@@ -2,7 +2,7 @@
 
 use agent::Agent;
 use policy::{Mode, PolicyConfig};
-use qnet::{NetInput, QNetConfig};
+use qnet::{Device, NetInput, QNetConfig};
 use sim::{Camera, Primitive, SimConfig, Tabletop};
 
 #[test]
@@ -14,7 +14,15 @@ fn an_ensemble_acts_on_the_mean_of_its_nets_q_maps() {
         head_width: 16,
         ..QNetConfig::default()
     };
-    let make = || Agent::new(&net, obs.side(), PolicyConfig::default(), Mode::PushGrasp);
+    let make = || {
+        Agent::new(
+            &net,
+            obs.side(),
+            PolicyConfig::default(),
+            Mode::PushGrasp,
+            &Device::flex(),
+        )
+    };
     // Fresh nets: each drawn with its own weights.
     let (one, other) = (make(), make());
     let mut pair = one.clone();

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use agent::{Agent, EvalConfig, Scene, evaluate};
 use policy::{Mode, PolicyConfig};
-use qnet::QNetConfig;
+use qnet::{Device, QNetConfig};
 use sim::{ANY_OBJECT, Arrangement, SimConfig};
 
 fn cases() -> Vec<(String, Scene)> {
@@ -28,7 +28,15 @@ fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
         head_width: 16,
         ..QNetConfig::default()
     };
-    let make = || Agent::new(&net, side, PolicyConfig::default(), Mode::PushGrasp);
+    let make = || {
+        Agent::new(
+            &net,
+            side,
+            PolicyConfig::default(),
+            Mode::PushGrasp,
+            &Device::flex(),
+        )
+    };
     // Untrained nets on the same weights in every worker: seed the weights once.
     let weights = make().nets().to_bytes().unwrap();
     let make_same = || {

@@ -90,7 +90,7 @@ pub fn bench_hosts(args: &HostsBenchArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let step_bytes = steps.iter().map(Vec::len).sum::<usize>() / steps.len();
     let packing = packing(&steps)?;
-    let weights = qnet::QNets::new(&config.net, &qnet::Backend::selected().device()).to_bytes()?;
+    let weights = qnet::QNets::new(&config.net, &qnet::Device::flex()).to_bytes()?;
     let dir = tempfile::tempdir()?;
     let secret = RunSecret::create_or_keep(&dir.path().join("run.secret"), RUN_ID)?;
     let endpoint: Endpoint = format!("tcp/127.0.0.1:{}", free_port()?).parse()?;

@@ -7,6 +7,7 @@ use anyhow::Result;
 use clap::{Args, Subcommand};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use runtime::backend::Backend;
 use serde::Serialize;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop};
@@ -68,6 +69,13 @@ pub struct LearnerBenchArgs {
     /// Leave the onnxruntime and numpy peer out.
     #[arg(long)]
     no_peer: bool,
+    /// The backend timed, `cpu` or `wgpu` (a wgpu build); on wgpu, the same nets on the CPU
+    /// give `max_rel_diff_vs_cpu` and the CPU's training step beside it.
+    #[arg(long, default_value_t = Backend::Cpu)]
+    backend: Backend,
+    /// Heightmap sides timed (pixels; the workspace is divided into side x side).
+    #[arg(long, value_delimiter = ',', default_values_t = [112, 224])]
+    sides: Vec<u32>,
 }
 
 #[derive(Args)]
@@ -269,17 +277,23 @@ fn print_figures(figures: &serde_json::Value, json: bool) -> Result<()> {
 
 fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     use learner::{LearningConfig, Sample, TrainedNet, Trainer};
-    use qnet::{ActingNets, NetInput, QNetConfig, QNets};
+    use qnet::{ActingNets, Device, Difference, NetInput, QNetConfig, QNets};
 
     let reps = args.reps.max(1);
-    let backend = qnet::Backend::selected();
-    let device = backend.device();
+    let backend = args.backend;
+    let open = runtime::backend::open(backend, "learner")?;
+    let device = open.device;
     let net = match &args.config {
         Some(path) => runtime::config::RunConfig::load(path)?.net,
         None => QNetConfig::default(),
     };
     let mut figures = serde_json::Map::new();
     figures.insert("backend".into(), backend.name().into());
+    if let Some(adapter) = &open.adapter {
+        figures.insert("adapter".into(), adapter.name.clone().into());
+        figures.insert("adapter_driver".into(), adapter.driver.clone().into());
+        figures.insert("adapter_api".into(), adapter.api.clone().into());
+    }
     figures.insert(
         "trunk_widths".into(),
         serde_json::to_value(&net.trunk_widths)?,
@@ -291,8 +305,8 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     figures.insert("fuse_context".into(), net.fuse_context.into());
     let python = args.python.clone().unwrap_or_else(python::default_python);
     let (mut peer_figures, mut peer_missing) = (serde_json::Map::new(), None);
-    for pixel_size in [0.004f32, 0.002] {
-        let config = SimConfig::with_pixel_size(pixel_size);
+    for &side in &args.sides {
+        let config = SimConfig::with_pixel_size(sim::workspace::SIDE / side as f32);
         let (tabletop, _) = Tabletop::random(&config, 10, 0)?;
         let maps = Camera::new(tabletop.grid()).render(&tabletop);
         let side = maps.side();
@@ -382,17 +396,29 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             label: 1.0,
             weight: 1.0,
         };
-        let mut step_ms = |batch: usize| -> Result<f64> {
-            let samples: Vec<Sample> = (0..batch).map(sample).collect();
-            trainer.train_step(&samples)?;
-            let times = (0..reps)
-                .map(|_| timed(|| trainer.train_step(&samples)).1)
-                .map(ms)
-                .collect();
-            Ok(median(times))
-        };
-        let train = step_ms(1)?;
-        let batch_train = step_ms(8)?;
+        let samples = |batch: usize| (0..batch).map(sample).collect::<Vec<_>>();
+        let train = train_step_ms(&mut trainer, &samples(1), reps)?;
+        let batch_train = train_step_ms(&mut trainer, &samples(8), reps)?;
+        if backend != Backend::Cpu {
+            // The same weights on the CPU: how far this device's Q maps are from the CPU's,
+            // and the CPU's training step beside this device's.
+            let cpu = Device::flex();
+            let cpu_nets = QNets::new(&net, &cpu).load_bytes(&nets.to_bytes()?)?;
+            let cpu_acting = ActingNets::new(&cpu_nets)?;
+            let mut worst = 0f32;
+            for primitive in [Primitive::Push, Primitive::Grasp] {
+                let here = acting.all_rotations(primitive, &input, &geometry)?;
+                let there = cpu_acting.all_rotations(primitive, &input, &geometry)?;
+                worst = worst.max(Difference::between(here.values(), there.values()).max_rel);
+            }
+            put("max_rel_diff_vs_cpu", f64::from(worst));
+            let learning = LearningConfig::default();
+            let mut cpu_trainer =
+                Trainer::new(cpu_nets, &net, side, &learning, TrainedNet::Grasp, &cpu);
+            let cpu_batch_train = train_step_ms(&mut cpu_trainer, &samples(8), reps)?;
+            put("cpu_batch_train_step_ms", cpu_batch_train);
+            put("batch_train_speedup_vs_cpu", cpu_batch_train / batch_train);
+        }
         let per_rotation = net.flops_per_rotation(geometry.padded());
         let gflop_inference = 2.0 * 16.0 * per_rotation / 1e9;
         // A grasp trains its rotation and the symmetric one; backward costs about twice the
@@ -431,16 +457,28 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     print_figures(&serde_json::Value::Object(figures), args.json)
 }
 
+/// The median time of `reps` training steps on `samples` (after one untimed step).
+fn train_step_ms(
+    trainer: &mut learner::Trainer,
+    samples: &[learner::Sample],
+    reps: usize,
+) -> Result<f64> {
+    trainer.train_step(samples)?;
+    let times = (0..reps)
+        .map(|_| timed(|| trainer.train_step(samples)).1)
+        .map(ms)
+        .collect();
+    Ok(median(times))
+}
+
 /// The backend's rate on a large square matrix product, the ceiling for the nets.
 fn matmul_peak_gflops(device: &burn::tensor::Device, reps: usize) -> f64 {
     use burn::tensor::{Distribution, Tensor};
     let n = 1024;
     let a = Tensor::<2>::random([n, n], Distribution::Default, device);
     let b = Tensor::<2>::random([n, n], Distribution::Default, device);
-    let run = || {
-        let c = a.clone().matmul(b.clone());
-        c.into_data();
-    };
+    // A value read back: a GPU backend only queues the product.
+    let run = || a.clone().matmul(b.clone()).sum().into_scalar::<f32>();
     run();
     let best = (0..reps)
         .map(|_| timed(run).1.as_secs_f64())

@@ -15,6 +15,7 @@ use learner::{Checkpoint, SavedNets};
 use serde::Serialize;
 use sim::Arrangement;
 
+use runtime::backend::{self, Backend};
 use runtime::config::RunConfig;
 use runtime::settings::{load_with, merge, parse_setting};
 use runtime::{RunDir, files_with_extension};
@@ -40,6 +41,10 @@ pub struct EvalArgs {
     /// Repeatable; it changes --checkpoint's config, whose policy acts.
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
     set: Vec<toml::Table>,
+    /// The backend the nets act on, `cpu` or `wgpu` (default: the config's
+    /// `backend.actors`); for --ensemble's nets too.
+    #[arg(long)]
+    backend: Option<Backend>,
     /// Arrangement files (our TOML, with a goal) or directories of them.
     #[arg(long, num_args = 1..)]
     arrangements: Vec<PathBuf>,
@@ -110,14 +115,15 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     } else {
         policy::Mode::PushGrasp
     };
-    let mut set = toml::Table::new();
+    let on_backend = args.backend.map(backend::setting).unwrap_or_default();
+    let mut set = on_backend.clone();
     for setting in &args.set {
         merge(&mut set, setting);
     }
     let (config, mut agent, updates) =
         load_agent(&args.checkpoint, args.config.as_deref(), &set, mode)?;
     for checkpoint in &args.ensemble {
-        let (member_config, member, _) = load_agent(checkpoint, None, &toml::Table::new(), mode)?;
+        let (member_config, member, _) = load_agent(checkpoint, None, &on_backend, mode)?;
         if config_hash(&member_config.net) != config_hash(&config.net)
             || member_config.side() != config.side()
         {
@@ -296,7 +302,17 @@ pub fn load_agent(
             config.side()
         );
     }
-    let mut agent = Agent::new(&config.net, config.side(), config.policy.clone(), mode);
+    let open = backend::open(config.backend.actors, "actors")?;
+    if let Some(adapter) = &open.adapter {
+        eprintln!("the nets on {}: {adapter}", config.backend.actors);
+    }
+    let mut agent = Agent::new(
+        &config.net,
+        config.side(),
+        config.policy.clone(),
+        mode,
+        &open.device,
+    );
     agent
         .load_weights(&weights)
         .with_context(|| format!("loading {}", checkpoint.display()))?;

@@ -184,9 +184,12 @@ fn print_run(run: &Run, report: &RunReport, all_episodes: bool) {
     println!("== {}", run.name);
     for f in &run.files {
         println!(
-            "{}: {} ({} messages over {}){}",
+            "{}: {}{} ({} messages over {}){}",
             f.file,
             f.process.as_deref().unwrap_or("?"),
+            f.device
+                .as_ref()
+                .map_or(String::new(), |d| format!(", nets on {d}")),
             f.messages,
             f.span_s.map_or("-".into(), |s| format!("{s:.1} s")),
             if f.recovered {

@@ -26,6 +26,8 @@ const LOSS_WINDOW: usize = 50;
 pub struct FileReport {
     pub file: String,
     pub process: Option<String>,
+    /// Where the process ran its nets: `cpu`, or `wgpu` and its adapter.
+    pub device: Option<String>,
     pub messages: u64,
     /// Seconds from the first to the last message.
     pub span_s: Option<f64>,
@@ -180,6 +182,13 @@ impl Run {
                 process: summary
                     .metadata(mcaplog::PROCESS_METADATA)
                     .and_then(|p| p.get("name").cloned()),
+                device: summary.metadata("device").map(|d| {
+                    let on = d.get("backend").map_or("?", String::as_str);
+                    match d.get("adapter") {
+                        Some(adapter) => format!("{on}: {adapter}"),
+                        None => on.to_string(),
+                    }
+                }),
                 messages: summary.messages,
                 span_s: summary.time_span_ns.map(|(a, b)| (b - a) as f64 * 1e-9),
                 recovered: summary.recovered,

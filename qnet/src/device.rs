@@ -1,38 +1,178 @@
-//! Which backend the networks run on: the CPU backend (burn-flex) unless the `wgpu` feature
-//! is built, and then burn-wgpu unless `PUSHGRASP_DEVICE=cpu` asks for the CPU.
+//! Which backend runs the nets — the CPU (burn-flex) or a GPU through burn-wgpu — and the
+//! device it opens, with the adapter a GPU backend landed on.
+//!
+//! A config names the backend (`[backend]`); a build without the `wgpu` feature, or a machine
+//! with no adapter, refuses `wgpu` with what to do, when the device is opened (the launcher
+//! opens every backend a run names before it starts a role).
+
+use std::fmt;
+use std::str::FromStr;
 
 use burn::tensor::Device;
+use serde::{Deserialize, Serialize};
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+use crate::error::QNetError;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Backend {
-    Flex,
-    #[cfg(feature = "wgpu")]
+    /// burn-flex on this machine's cores (the nets' inference form for acting).
+    #[default]
+    Cpu,
+    /// burn-wgpu: Vulkan, Metal, DirectX 12 or OpenGL, on a GPU or a software rasterizer.
     Wgpu,
 }
 
+/// A backend's device, opened, and the adapter it runs on (none for the CPU).
+#[derive(Clone, Debug)]
+pub struct OpenDevice {
+    pub device: Device,
+    pub adapter: Option<Adapter>,
+}
+
+/// The graphics adapter a wgpu device runs on, as wgpu reports it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Adapter {
+    /// e.g. `NVIDIA H100 80GB HBM3`, `llvmpipe (LLVM 15.0.6, 256 bits)`.
+    pub name: String,
+    /// The driver's name and version, e.g. `llvmpipe Mesa 22.3.6`.
+    pub driver: String,
+    /// The graphics API, e.g. `Vulkan`.
+    pub api: String,
+    /// `DiscreteGpu`, `IntegratedGpu`, `Cpu` (a software rasterizer), ...
+    pub kind: String,
+}
+
+impl fmt::Display for Adapter {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{} ({}; driver {}; {})",
+            self.name, self.kind, self.driver, self.api
+        )
+    }
+}
+
 impl Backend {
-    /// The backend this build and environment select.
-    pub fn selected() -> Self {
-        #[cfg(feature = "wgpu")]
-        if std::env::var("PUSHGRASP_DEVICE").as_deref() != Ok("cpu") {
-            return Backend::Wgpu;
-        }
-        Backend::Flex
-    }
-
-    pub fn device(self) -> Device {
-        match self {
-            Backend::Flex => Device::flex(),
-            #[cfg(feature = "wgpu")]
-            Backend::Wgpu => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
-        }
-    }
-
     pub fn name(self) -> &'static str {
         match self {
-            Backend::Flex => "flex",
-            #[cfg(feature = "wgpu")]
+            Backend::Cpu => "cpu",
             Backend::Wgpu => "wgpu",
         }
+    }
+
+    /// The backend's device, ready to use. Opening `wgpu` chooses and starts its adapter
+    /// once per process (later calls share it).
+    pub fn open(self) -> Result<OpenDevice, QNetError> {
+        match self {
+            Backend::Cpu => Ok(OpenDevice {
+                device: Device::flex(),
+                adapter: None,
+            }),
+            Backend::Wgpu => gpu::open(),
+        }
+    }
+}
+
+impl fmt::Display for Backend {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Backend {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "cpu" => Ok(Backend::Cpu),
+            "wgpu" => Ok(Backend::Wgpu),
+            _ => Err(format!("`{s}` is not a backend: cpu or wgpu")),
+        }
+    }
+}
+
+#[cfg(feature = "wgpu")]
+mod gpu {
+    use std::sync::OnceLock;
+
+    use burn::tensor::Device;
+
+    use super::{Adapter, OpenDevice};
+    use crate::error::QNetError;
+
+    /// burn registers a wgpu device once per process: the first opening's result is kept.
+    static OPENED: OnceLock<Result<OpenDevice, String>> = OnceLock::new();
+
+    pub fn open() -> Result<OpenDevice, QNetError> {
+        OPENED
+            .get_or_init(|| {
+                let (device, setup) = Device::wgpu_options().init_with_setup().map_err(|e| {
+                    format!(
+                        "{e}. Install the GPU's Vulkan driver (or, for a software device, \
+                         Mesa's lavapipe: Debian's `mesa-vulkan-drivers` and `libvulkan1`), \
+                         or use the cpu backend"
+                    )
+                })?;
+                let info = setup.adapter.get_info();
+                let driver = [info.driver.trim(), info.driver_info.trim()]
+                    .into_iter()
+                    .filter(|part| !part.is_empty())
+                    .collect::<Vec<_>>()
+                    .join(" ");
+                Ok(OpenDevice {
+                    device,
+                    adapter: Some(Adapter {
+                        name: info.name,
+                        driver,
+                        api: format!("{:?}", info.backend),
+                        kind: format!("{:?}", info.device_type),
+                    }),
+                })
+            })
+            .clone()
+            .map_err(QNetError::Backend)
+    }
+}
+
+#[cfg(not(feature = "wgpu"))]
+mod gpu {
+    use super::OpenDevice;
+    use crate::error::QNetError;
+
+    pub fn open() -> Result<OpenDevice, QNetError> {
+        Err(QNetError::Backend(
+            "this build has no wgpu backend: build with `cargo build --release --features wgpu` \
+             or use the cpu backend"
+                .into(),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backends_read_as_their_names_and_nothing_else() {
+        for backend in [Backend::Cpu, Backend::Wgpu] {
+            assert_eq!(backend.name().parse::<Backend>(), Ok(backend));
+        }
+        let error = "gpu".parse::<Backend>().unwrap_err();
+        assert!(error.contains("cpu or wgpu"), "{error}");
+    }
+
+    #[test]
+    fn the_cpu_opens_without_an_adapter() {
+        let open = Backend::Cpu.open().unwrap();
+        assert_eq!(open.device, Device::flex());
+        assert!(open.adapter.is_none());
+    }
+
+    #[cfg(not(feature = "wgpu"))]
+    #[test]
+    fn wgpu_in_a_build_without_it_says_how_to_build_it() {
+        let error = Backend::Wgpu.open().unwrap_err().to_string();
+        assert!(error.contains("--features wgpu"), "{error}");
     }
 }

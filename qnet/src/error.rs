@@ -8,6 +8,8 @@ pub enum QNetError {
     Rotation(u8),
     #[error("the input is {got} x {got} but the geometry is for {want} x {want}")]
     Side { got: usize, want: usize },
+    #[error("the wgpu backend: {0}")]
+    Backend(String),
     #[error(transparent)]
     QMaps(#[from] policy::PolicyError),
 }

@@ -9,8 +9,9 @@
 //! unfolded again band by band rather than kept. Composed from burn's own operations (an
 //! unfolding gather, a matrix product, their autodiff), the columns of a training step were a
 //! hundred megabytes written, transposed, packed and scattered back, element by element
-//! where burn-flex has no parallel path. On other backends (wgpu) the composed version runs
-//! under the same backward.
+//! where burn-flex has no parallel path. The composed version stays as the reference the CPU
+//! loops are tested against. Only the CPU backend takes this route: on a GPU the nets
+//! convolve with burn's own `conv2d`, whose kernels and gradients are tuned for it.
 
 use std::ops::Range;
 
@@ -255,7 +256,7 @@ pub(crate) fn flex_tensor(values: Vec<f32>, shape: impl Into<Shape>) -> FloatTen
 
 /// The convolution as a backend operation: forward, and the two gradients its backward needs.
 /// Inputs are `[n, c, h, h]`, weights `[o, c, k, k]`, outputs `[n, o, side, side]`; no bias.
-#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"))]
+#[backend_extension(Flex, Autodiff)]
 pub trait ConvBackend: Backend {
     fn conv_taps(x: FloatTensor<Self>, weight: FloatTensor<Self>, taps: Taps) -> FloatTensor<Self> {
         composed::conv::<Self>(x, weight, taps)
@@ -597,9 +598,6 @@ pub(crate) fn unfold_item(
     }
 }
 
-#[cfg(feature = "wgpu")]
-impl ConvBackend for burn::backend::Cube {}
-
 impl<B: Backend + ConvBackend, C: CheckpointStrategy> ConvBackend for Autodiff<B, C> {
     fn conv_taps(x: FloatTensor<Self>, weight: FloatTensor<Self>, taps: Taps) -> FloatTensor<Self> {
         #[derive(Debug)]
@@ -652,7 +650,7 @@ impl<B: Backend + ConvBackend, C: CheckpointStrategy> ConvBackend for Autodiff<B
 }
 
 /// `x` (`[n, c, h, h]`) convolved with `weight` (`[o, c, k, k]`) at `taps`, without bias, on
-/// whichever backend the tensors live (differentiable on an autodiff device).
+/// the CPU backend (differentiable on its autodiff device).
 pub fn conv(x: Tensor<4>, weight: Tensor<4>, taps: Taps) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as ConvBackend>::conv_taps(
         x.into_dispatch(),

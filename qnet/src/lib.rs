@@ -10,6 +10,7 @@
 //! several times faster.
 
 pub mod acting;
+pub mod agreement;
 pub mod batch_norm;
 pub mod config;
 pub mod device;
@@ -23,8 +24,11 @@ pub mod net;
 pub mod qnets;
 
 pub use acting::ActingNets;
+pub use agreement::Difference;
+/// The device the nets live on (burn's).
+pub use burn::tensor::Device;
 pub use config::QNetConfig;
-pub use device::Backend;
+pub use device::{Adapter, Backend, OpenDevice};
 pub use error::QNetError;
 pub use geometry::Geometry;
 pub use inference::Inference;
@@ -39,15 +43,12 @@ mod testing {
     /// Asserts `ours` equals `reference` within `tolerance` of the reference's largest
     /// magnitude (which must not be zero, so an all-zero pair cannot pass).
     pub fn assert_close(ours: &[f32], reference: &[f32], tolerance: f32, what: &str) {
-        assert_eq!(ours.len(), reference.len(), "{what}");
-        let scale = reference.iter().fold(0f32, |m, v| m.max(v.abs()));
-        let worst = ours
-            .iter()
-            .zip(reference)
-            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        let d = crate::Difference::between(ours, reference);
         assert!(
-            scale > 0.0 && worst <= tolerance * scale,
-            "{what} differs by {worst} of {scale}"
+            d.max_rel <= tolerance,
+            "{what} differs by {} ({} of the reference's scale)",
+            d.max_abs,
+            d.max_rel
         );
     }
 }

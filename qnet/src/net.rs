@@ -46,11 +46,12 @@ impl ConvBlock {
     }
 }
 
-/// `conv` on `x`, by the fastest route for what the result is for. A net in training (its
-/// weights take gradients) goes through [`conv_as_gemm`]; otherwise burn's own `conv2d`,
-/// which is faster forward.
+/// `conv` on `x`, by the fastest route for what the result is for. On the CPU, a net in
+/// training (its weights take gradients) goes through [`conv_as_gemm`]; otherwise, and on
+/// any other backend (a GPU's, whose convolution kernels and their gradients are burn's
+/// own, tuned for it), burn's own `conv2d`.
 fn convolve(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    if conv.weight.val().is_require_grad() {
+    if conv.weight.val().is_require_grad() && x.device().without_autodiff() == Device::flex() {
         conv_as_gemm(conv, x)
     } else {
         conv.forward(x)

@@ -5,7 +5,7 @@
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use qnet::{Geometry, Inference, NetInput, QNetConfig, QNets};
+use qnet::{Difference, Geometry, Inference, NetInput, QNetConfig, QNets};
 use sim::{Camera, Primitive, SimConfig, Tabletop};
 
 fn scene_input(pixel_size: f32, goal: u8) -> NetInput {
@@ -34,16 +34,6 @@ fn trained_nets(config: &QNetConfig, geometry: &Geometry, input: &NetInput) -> Q
     nets.valid()
 }
 
-/// The largest difference between two sets of maps, over the largest magnitude of `want`.
-fn relative_difference(got: &[f32], want: &[f32]) -> (f32, f32) {
-    let scale = want.iter().fold(0f32, |m, v| m.max(v.abs()));
-    let worst = got
-        .iter()
-        .zip(want)
-        .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
-    (worst, scale)
-}
-
 fn agrees(config: &QNetConfig, pixel_size: f32) {
     let input = scene_input(pixel_size, 2);
     let geometry = Geometry::new(input.side, config);
@@ -58,16 +48,12 @@ fn agrees(config: &QNetConfig, pixel_size: f32) {
             (got.rotations(), got.side()),
             (want.rotations(), want.side())
         );
-        let (worst, scale) = relative_difference(got.values(), want.values());
+        let d = Difference::between(got.values(), want.values());
         println!(
-            "{config:?} at {} px, {primitive:?}: max abs difference {worst:e}, relative {:e}",
-            input.side,
-            worst / scale
+            "{config:?} at {} px, {primitive:?}: max abs difference {:e}, relative {:e}",
+            input.side, d.max_abs, d.max_rel
         );
-        assert!(
-            scale > 0.0 && worst <= 1e-4 * scale,
-            "{config:?} {primitive:?}: differ by {worst} of {scale}"
-        );
+        assert!(d.max_rel <= 1e-4, "{config:?} {primitive:?}: {d:?}");
     }
 }
 
@@ -124,8 +110,8 @@ fn the_convolutions_alone_give_the_maps_before_the_rotations() {
         .into_data()
         .try_to_vec::<f32>()
         .unwrap();
-    let (worst, scale) = relative_difference(&low, &want);
-    assert!(scale > 0.0 && worst <= 1e-4 * scale, "{worst} of {scale}");
+    let d = Difference::between(&low, &want);
+    assert!(d.max_rel <= 1e-4, "{d:?}");
 }
 
 #[test]

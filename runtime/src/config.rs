@@ -11,6 +11,8 @@ use rand::RngExt;
 use serde::{Deserialize, Serialize};
 use sim::{Rows, SimConfig};
 
+use crate::backend::Backends;
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
@@ -66,6 +68,9 @@ pub struct RunConfig {
     pub logging: LoggingConfig,
     #[serde(default)]
     pub run: Supervision,
+    /// Which backend runs the learner's nets and the actors' (`cpu` or `wgpu`).
+    #[serde(default)]
+    pub backend: Backends,
 }
 
 /// How the launcher watches its roles.

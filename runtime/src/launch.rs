@@ -14,6 +14,7 @@ use mcaplog::LogLevel;
 use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
+use crate::backend::{self, Backend};
 use crate::buffer::BufferReport;
 use crate::config::RunConfig;
 use crate::hosts::HostLink;
@@ -21,6 +22,7 @@ use crate::progress::{Display, Summary, Watch, percent};
 use crate::record::LAUNCHER_SUMMARY;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
+use crate::settings::{load_with, merge, parse_setting};
 use crate::signals::Signals;
 use crate::supervisor::{Supervisor, Wiring};
 use crate::{read_json, write_json};
@@ -67,6 +69,14 @@ pub struct TrainArgs {
     /// rates spread over these and the local ones; with it, `--actors 0` is allowed.
     #[arg(long)]
     remote_actors: Option<u32>,
+    /// The backend of the learner's and the actors' nets, `cpu` or `wgpu` (the config's
+    /// `[backend]`; one of them alone: `--set backend.learner='"wgpu"'`).
+    #[arg(long)]
+    backend: Option<Backend>,
+    /// A setting that replaces the config's (with --resume, the run's own): a dotted key and
+    /// a TOML value, e.g. `--set learning.gamma=0.9`. Repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
+    set: Vec<toml::Table>,
 }
 
 pub fn train(args: &TrainArgs) -> Result<()> {
@@ -156,8 +166,8 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
         (None, false) => default_run_id(RunConfig::load(&args.config)?.stage),
     };
     let dir = RunDir::in_logs(&args.logs, &run_id);
-    let mut config = if args.resume {
-        RunConfig::load(&dir.config())?
+    let path = if args.resume {
+        dir.config()
     } else {
         if dir.holds_run() {
             bail!(
@@ -165,8 +175,13 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
                 dir.path().display()
             );
         }
-        RunConfig::load(&args.config)?
+        args.config.clone()
     };
+    let mut set = args.backend.map(backend::setting).unwrap_or_default();
+    for setting in &args.set {
+        merge(&mut set, setting);
+    }
+    let (mut config, _) = load_with(&path, &set, "--set and --backend")?;
     if let Some(actors) = args.actors {
         config.actors = actors;
     }
@@ -187,6 +202,7 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
     }
     config.validate()?;
     config.size_buffer()?;
+    config.backend.check()?;
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
     std::fs::write(dir.config(), toml::to_string(&config)?)?;

@@ -6,6 +6,7 @@
 //! host carries what must cross (the `bridge` crate).
 
 pub mod actor;
+pub mod backend;
 pub mod buffer;
 pub mod config;
 pub mod hosts;

@@ -14,6 +14,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Deserialize;
 
+use crate::backend::{self, Backend};
 use crate::config::RunConfig;
 use crate::progress::{Summary, percent};
 use crate::run_dir::RunDir;
@@ -38,6 +39,9 @@ pub struct PipelineArgs {
     /// e.g. `--set seed=4` or `--set push_reward='"none"'`. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
     set: Vec<toml::Table>,
+    /// The backend of every stage's learner and actors, `cpu` or `wgpu` (before --set).
+    #[arg(long)]
+    backend: Option<Backend>,
 }
 
 /// A pipeline file.
@@ -109,6 +113,9 @@ impl PipelineFile {
 
 pub fn run(args: &PipelineArgs) -> Result<()> {
     let mut file = PipelineFile::load(&args.config)?;
+    if let Some(backend) = args.backend {
+        merge(&mut file.set, &backend::setting(backend));
+    }
     for setting in &args.set {
         merge(&mut file.set, setting);
     }

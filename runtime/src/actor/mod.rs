@@ -23,6 +23,7 @@ use sim::measure::detect_change;
 use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
 use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weights};
 
+use crate::backend::open_device;
 use crate::config::RunConfig;
 use crate::{Lifeline, stop_requested};
 use pictures::log_pictures;
@@ -93,7 +94,7 @@ pub fn run(
     };
     let steps = Outbox::open(transport, Topic::Steps)?;
     let mut shipper = Shipper::new(log, steps, origin, config);
-    let mut policy = Policy::new(transport, config)?;
+    let mut policy = Policy::new(transport, config, log)?;
     let mut report = ActorReport {
         actor: id.index,
         incarnation: id.incarnation,
@@ -141,12 +142,14 @@ struct Policy {
 }
 
 impl Policy {
-    fn new(transport: &dyn Transport, config: &RunConfig) -> Result<Self> {
+    fn new(transport: &dyn Transport, config: &RunConfig, log: &RunLog) -> Result<Self> {
+        let device = open_device(config.backend.actors, "actors", log)?;
         let agent = Agent::new(
             &config.net,
             config.side(),
             config.policy.clone(),
             config.mode(),
+            &device,
         );
         Ok(Self {
             agent,

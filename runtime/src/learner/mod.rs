@@ -24,6 +24,7 @@ use wire::{
 
 mod requests;
 
+use super::backend::open_device;
 use super::config::RunConfig;
 use super::record::{LEARNER_UPDATE, UpdateRecord};
 use super::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
@@ -95,7 +96,7 @@ pub fn run(
     log: &RunLog,
     lifeline: &Lifeline,
 ) -> Result<LearnerReport> {
-    let mut role = LearnerRole::new(config, log, dir);
+    let mut role = LearnerRole::new(config, log, dir)?;
     role.start_from(start.resume)?;
     role.continue_versions(start.weights_after);
     let mut ports = Ports::open(transport)?;
@@ -170,9 +171,9 @@ struct LearnerRole<'a> {
 }
 
 impl<'a> LearnerRole<'a> {
-    /// Fresh nets from the run's seed.
-    fn new(config: &'a RunConfig, log: &'a RunLog, dir: &RunDir) -> Self {
-        let device = qnet::Backend::selected().device();
+    /// Fresh nets from the run's seed, on the learner's backend.
+    fn new(config: &'a RunConfig, log: &'a RunLog, dir: &RunDir) -> Result<Self> {
+        let device = open_device(config.backend.learner, "learner", log)?;
         // The initial weights come from the backend's generator.
         device.seed(config.seed);
         let nets = QNets::new(&config.net, &device);
@@ -184,7 +185,7 @@ impl<'a> LearnerRole<'a> {
             config.trained_nets()[0],
             &device,
         );
-        Self {
+        Ok(Self {
             config,
             log,
             trainer,
@@ -193,7 +194,7 @@ impl<'a> LearnerRole<'a> {
             first_batch: None,
             version_offset: 0,
             report: LearnerReport::default(),
-        }
+        })
     }
 
     /// After a restart: versions from here on pass `weights_after`, and the updates the

@@ -1,0 +1,388 @@
+//! The GPU path (burn-wgpu) against the CPU backend on this machine's adapter — Mesa's
+//! software Vulkan (lavapipe) where there is no GPU, as in CI: the same Q maps from the
+//! same weights, the same training step, checkpoints that move between the two, and a real
+//! run with its learner on wgpu. Built with `--features wgpu` alone (`make test` runs it).
+//! Speed is no target here: lavapipe multiplies at about 2 GFLOP/s.
+#![cfg(feature = "wgpu")]
+
+use std::sync::{Mutex, MutexGuard};
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::prelude::*;
+use learner::{Checkpoint, LearningConfig, Manifest, Sample, SavedNets, TrainedNet, Trainer};
+use qnet::{Backend, Difference, NetInput, QNetConfig, QNets};
+use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
+
+mod common;
+#[path = "common/stage1.rs"]
+mod stage1;
+
+use common::{pushgrasp_fails, pushgrasp_ok};
+
+/// The Q maps of both nets must agree this closely (of their scale).
+const AGREEMENT: f32 = 1e-3;
+
+/// One test at a time on the device: lavapipe's threads take every core, and a run's
+/// learner starved of them goes silent past its heartbeat.
+static DEVICE: Mutex<()> = Mutex::new(());
+
+fn device_turn() -> MutexGuard<'static, ()> {
+    DEVICE
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+fn gpu() -> Device {
+    let open = Backend::Wgpu
+        .open()
+        .expect("a wgpu adapter: `make test` installs Mesa's lavapipe");
+    println!("adapter: {}", open.adapter.expect("wgpu names its adapter"));
+    open.device
+}
+
+/// The stage configs' nets (context convolutions) and the library's default shape.
+fn net_shapes() -> [QNetConfig; 2] {
+    let stage = QNetConfig {
+        trunk_widths: vec![8, 16],
+        context_dilations: vec![1, 2],
+        head_width: 64,
+        ..QNetConfig::default()
+    };
+    [QNetConfig::default(), stage]
+}
+
+fn scene_input(goal_index: usize) -> NetInput {
+    let config = SimConfig::with_pixel_size(0.004);
+    let (tabletop, _) = Tabletop::random(&config, 6, 5).unwrap();
+    let maps = Camera::new(tabletop.grid()).render(&tabletop);
+    let goal = maps.visible_ids()[goal_index];
+    NetInput::encode(&maps, goal)
+}
+
+/// Grasps at several pixels and rotations of one scene, labelled 0 or 1.
+fn samples(input: &NetInput, n: usize) -> Vec<Sample> {
+    (0..n)
+        .map(|k| Sample {
+            input: input.clone(),
+            action: Action {
+                primitive: Primitive::Grasp,
+                rotation: (3 * k % 16) as u8,
+                row: input.side / 3 + 7 * k,
+                col: input.side / 2 + 5 * k,
+            },
+            label: (k % 2) as f32,
+            weight: 1.0,
+        })
+        .collect()
+}
+
+fn trainer(nets: QNets, net: &QNetConfig, side: usize, device: &Device) -> Trainer {
+    let learning = LearningConfig::default();
+    Trainer::new(nets, net, side, &learning, TrainedNet::Grasp, device)
+}
+
+/// Nets trained a few steps on the CPU: weights, batch-norm scales and running statistics
+/// all moved from their initial values.
+fn trained_on_cpu(net: &QNetConfig, input: &NetInput) -> QNets {
+    let cpu = Device::flex();
+    cpu.seed(7);
+    let mut trainer = trainer(QNets::new(net, &cpu), net, input.side, &cpu);
+    for _ in 0..3 {
+        trainer.train_step(&samples(input, 4)).unwrap();
+    }
+    trainer.published_nets()
+}
+
+fn on(device: &Device, net: &QNetConfig, nets: &QNets) -> QNets {
+    QNets::new(net, device)
+        .load_bytes(&nets.to_bytes().unwrap())
+        .unwrap()
+}
+
+/// Both nets' Q maps over all 16 rotations, `ours` against `reference`.
+fn maps_agree(ours: &QNets, reference: &QNets, net: &QNetConfig, input: &NetInput, what: &str) {
+    let geometry = qnet::Geometry::new(input.side, net);
+    for primitive in [Primitive::Push, Primitive::Grasp] {
+        let got = ours.all_rotations(primitive, input, &geometry).unwrap();
+        let want = reference
+            .all_rotations(primitive, input, &geometry)
+            .unwrap();
+        let d = Difference::between(got.values(), want.values());
+        println!(
+            "{what}, {primitive:?}, context {:?}: max abs difference {:e}, relative {:e}",
+            net.context_dilations, d.max_abs, d.max_rel
+        );
+        assert!(d.max_rel <= AGREEMENT, "{what}, {primitive:?}: {d:?}");
+    }
+}
+
+#[test]
+fn both_nets_give_the_cpus_q_maps_over_16_rotations() {
+    let _turn = device_turn();
+    let gpu = gpu();
+    let input = scene_input(0);
+    for net in net_shapes() {
+        let cpu_nets = trained_on_cpu(&net, &input);
+        maps_agree(
+            &on(&gpu, &net, &cpu_nets),
+            &cpu_nets,
+            &net,
+            &input,
+            "wgpu vs cpu",
+        );
+    }
+}
+
+/// Every float tensor of a module (weights, biases, batch-norm scales, shifts and running
+/// statistics), in visiting order.
+#[derive(Default)]
+struct Floats(Vec<Vec<f32>>);
+
+impl ModuleVisitor for Floats {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        self.0
+            .push(param.val().into_data().try_to_vec::<f32>().unwrap());
+    }
+}
+
+fn floats(nets: &QNets) -> Vec<Vec<f32>> {
+    let mut floats = Floats::default();
+    nets.visit(&mut floats);
+    floats.0
+}
+
+#[test]
+fn one_training_step_gives_the_cpus_loss_and_weights() {
+    let _turn = device_turn();
+    let gpu = gpu();
+    let input = scene_input(1);
+    let [_, net] = net_shapes();
+    let start = trained_on_cpu(&net, &input);
+    let batch = samples(&input, 4);
+    let mut on_cpu = trainer(start.clone(), &net, input.side, &Device::flex());
+    let mut on_gpu = trainer(on(&gpu, &net, &start), &net, input.side, &gpu);
+    let cpu_step = on_cpu.train_step(&batch).unwrap();
+    let gpu_step = on_gpu.train_step(&batch).unwrap();
+    let loss = Difference::between(&[gpu_step.loss], &[cpu_step.loss]);
+    println!(
+        "loss: cpu {}, wgpu {}, relative difference {:e}",
+        cpu_step.loss, gpu_step.loss, loss.max_rel
+    );
+    assert!(loss.max_rel <= AGREEMENT, "loss: {loss:?}");
+    let q = Difference::between(&gpu_step.predicted, &cpu_step.predicted);
+    assert!(q.max_rel <= AGREEMENT, "predicted Q: {q:?}");
+    // The weights after the step. Adam's first step moves a weight by about the learning
+    // rate whatever its gradient's size, so a gradient below the two backends' rounding
+    // steps either way: each weight must be within two steps (and 1e-3 of its tensor's
+    // scale) of the CPU's, and those stepping the other way must be a rare few.
+    let lr = LearningConfig::default().learning_rate as f32;
+    let (before, cpu_after, gpu_after) = (
+        floats(&start),
+        floats(&on_cpu.published_nets()),
+        floats(&on_gpu.published_nets()),
+    );
+    assert_eq!(cpu_after.len(), gpu_after.len());
+    let (mut moved, mut reversed, mut total) = (0, 0, 0);
+    for ((was, cpu), gpu) in before.iter().zip(&cpu_after).zip(&gpu_after) {
+        let scale = cpu.iter().fold(0f32, |m, w| m.max(w.abs()));
+        for ((w, c), g) in was.iter().zip(cpu).zip(gpu) {
+            assert!(
+                (c - g).abs() <= 2.0 * lr + AGREEMENT * scale,
+                "a weight went from {w} to {c} on the cpu, to {g} on wgpu"
+            );
+            total += 1;
+            moved += usize::from(c != w);
+            reversed += usize::from((c - w) * (g - w) < 0.0);
+        }
+    }
+    println!("weights: {moved} of {total} moved; {reversed} the other way on wgpu");
+    assert!(moved > 0, "the step moved no weight");
+    assert!(
+        reversed * 100 < moved,
+        "{reversed} of {moved} weights stepped the other way"
+    );
+    maps_agree(
+        &on_gpu.published_nets(),
+        &on_cpu.published_nets(),
+        &net,
+        &input,
+        "after one step, wgpu vs cpu",
+    );
+}
+
+#[test]
+fn a_checkpoint_saved_on_one_backend_loads_on_the_other() {
+    let _turn = device_turn();
+    let gpu = gpu();
+    let input = scene_input(2);
+    let [_, net] = net_shapes();
+    let dir = tempfile::tempdir().unwrap();
+    let save = |trainer: &Trainer, name: &str| -> SavedNets {
+        let (weights, trained) = trainer.checkpoint_weights().unwrap();
+        let checkpoint = Checkpoint::at(dir.path().join(name));
+        let manifest = Manifest {
+            stage: 1,
+            updates: trainer.updates(),
+            side: input.side,
+            config_hash: learner::checkpoint::config_hash(&net),
+        };
+        checkpoint
+            .save(&SavedNets {
+                manifest,
+                weights,
+                trained,
+            })
+            .unwrap();
+        checkpoint
+            .load(&learner::checkpoint::config_hash(&net))
+            .unwrap()
+    };
+    let batch = samples(&input, 4);
+    for (from, to, name) in [
+        (gpu.clone(), Device::flex(), "wgpu-to-cpu"),
+        (Device::flex(), gpu.clone(), "cpu-to-wgpu"),
+    ] {
+        let mut source = trainer(QNets::new(&net, &from), &net, input.side, &from);
+        source.train_step(&batch).unwrap();
+        let saved = save(&source, name);
+        let mut resumed = trainer(QNets::new(&net, &to), &net, input.side, &to);
+        resumed.resume(&saved).unwrap();
+        assert_eq!(resumed.updates(), 1, "{name}");
+        maps_agree(
+            &resumed.published_nets(),
+            &source.published_nets(),
+            &net,
+            &input,
+            name,
+        );
+    }
+}
+
+#[test]
+fn a_short_run_trains_its_learner_on_wgpu() {
+    let _turn = device_turn();
+    let logs = tempfile::tempdir().unwrap();
+    let logs_arg = logs.path().to_str().unwrap();
+    let config = stage1::stage1_with(
+        logs.path(),
+        "wgpu",
+        &[
+            ("episodes", 200.into()),
+            ("learner.checkpoint_every", 2.into()),
+            ("backend.learner", "wgpu".into()),
+        ],
+    );
+    let out = pushgrasp_ok(&[
+        "train",
+        "--config",
+        config.to_str().unwrap(),
+        "--logs",
+        logs_arg,
+        "--run-id",
+        "wgpu",
+        "--updates",
+        "4",
+    ]);
+    println!("{out}");
+    assert!(
+        out.contains("the learner's nets on wgpu: "),
+        "no adapter printed:\n{out}"
+    );
+    let run = logs.path().join("wgpu");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    let updates = summary["learner"]["updates"].as_u64().unwrap();
+    assert!(
+        updates >= 4,
+        "the learner stopped short of its budget: {summary}"
+    );
+    assert_eq!(summary["faults"], serde_json::json!([]), "{summary}");
+    assert!(
+        summary["failure"].is_null(),
+        "the run failed: {}",
+        summary["failure"]
+    );
+    assert!(run.join("checkpoint/manifest.toml").exists());
+    // The learner's log names the adapter; an actor's names the CPU.
+    let learner_log = mcaplog::read_summary(&run.join("learner.mcap")).unwrap();
+    let device = learner_log
+        .metadata("device")
+        .expect("the learner's device");
+    assert_eq!(device["backend"], "wgpu");
+    assert!(!device["adapter"].is_empty());
+    let actor_log = mcaplog::read_summary(&run.join("actor-0-0.mcap")).unwrap();
+    assert_eq!(actor_log.metadata("device").unwrap()["backend"], "cpu");
+    // The checkpoint the wgpu learner wrote acts on the CPU.
+    pushgrasp_ok(&[
+        "eval",
+        "--checkpoint",
+        run.join("checkpoint").to_str().unwrap(),
+        "--random",
+        "5",
+        "--runs",
+        "2",
+        "--json",
+    ]);
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(config.contains("learner = \"wgpu\""), "{config}");
+}
+
+#[test]
+fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
+    let _turn = device_turn();
+    let out = pushgrasp_ok(&[
+        "bench",
+        "learner",
+        "--backend",
+        "wgpu",
+        "--json",
+        "--reps",
+        "1",
+        "--no-peer",
+        "--sides",
+        "112",
+    ]);
+    let figures: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    println!("{figures}");
+    assert_eq!(figures["backend"], "wgpu");
+    assert!(!figures["adapter"].as_str().unwrap().is_empty());
+    let diff = figures["max_rel_diff_vs_cpu_112"].as_f64().unwrap();
+    assert!(diff <= f64::from(AGREEMENT), "{diff}");
+    assert!(figures["batch_train_speedup_vs_cpu_112"].as_f64().unwrap() > 0.0);
+
+    let refused = pushgrasp_fails(&["bench", "learner", "--backend", "vulkan"]);
+    assert!(refused.contains("cpu or wgpu"), "{refused}");
+}
+
+#[test]
+fn a_machine_without_an_adapter_is_refused_before_anything_starts() {
+    let _turn = device_turn();
+    let logs = tempfile::tempdir().unwrap();
+    // No Vulkan driver, no EGL vendor: wgpu finds no adapter at all.
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .args([
+            "train",
+            "--set",
+            "backend.actors=\"wgpu\"",
+            "--run-id",
+            "none",
+            "--logs",
+        ])
+        .arg(logs.path())
+        .env("VK_ICD_FILENAMES", "/nonexistent.json")
+        .env("__EGL_VENDOR_LIBRARY_FILENAMES", "/nonexistent.json")
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let error = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(
+        error.contains("backend.actors = \"wgpu\" (--backend)"),
+        "{error}"
+    );
+    assert!(error.contains("mesa-vulkan-drivers"), "{error}");
+    assert!(
+        !logs.path().join("none").exists(),
+        "a run directory was made"
+    );
+}
