@@ -330,16 +330,20 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
                     .collect(),
             )
         };
-        // What the actors run, and burn's own forward of the same nets beside it.
+        // What the actors run, and burn's own forward of the same nets beside it (on a GPU
+        // the actors run burn's forward: timed once).
         let infer = both(&|primitive| {
             acting
                 .all_rotations(primitive, &input, &geometry)
                 .expect("inference");
         });
-        let burn_infer = both(&|primitive| {
-            nets.all_rotations(primitive, &input, &geometry)
-                .expect("inference");
-        });
+        let burn_infer = match &acting {
+            ActingNets::Cpu(_) => both(&|primitive| {
+                nets.all_rotations(primitive, &input, &geometry)
+                    .expect("inference");
+            }),
+            ActingNets::Device(_) => infer,
+        };
         let suffix = format!("_{side}");
         let mut put = |name: &str, value: f64| {
             figures.insert(format!("{name}{suffix}"), value.into());

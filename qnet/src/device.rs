@@ -31,7 +31,7 @@ pub struct OpenDevice {
 }
 
 /// The graphics adapter a wgpu device runs on, as wgpu reports it.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug)]
 pub struct Adapter {
     /// e.g. `NVIDIA H100 80GB HBM3`, `llvmpipe (LLVM 15.0.6, 256 bits)`.
     pub name: String,
