@@ -49,6 +49,10 @@ pub struct HostReport {
     /// Each actor stream's newest report: (index, incarnation) -> (steps sent, received).
     #[serde(skip)]
     pub(crate) streams: BTreeMap<(u32, u32), (u64, u64)>,
+    /// The newest parcel taken since it last joined: one sent again after its link came
+    /// back is taken once.
+    #[serde(skip)]
+    pub(crate) parcels_taken: u64,
 }
 
 impl HostReport {
@@ -163,6 +167,7 @@ impl Hosts {
         };
         host.joins += 1;
         host.done = false;
+        host.parcels_taken = 0;
         match self.save() {
             Ok(()) => JoinReply::Accepted(placement),
             Err(e) => refuse(format!("the central host cannot record the join: {e:#}")),

@@ -316,16 +316,28 @@ fn take_parcel(
     bytes: &[u8],
     steps_out: &mut dyn wire::Publisher,
 ) -> Result<Option<u64>> {
-    let (number, messages) = match parcel::unpack(bytes) {
-        Ok((number, Parcel::Messages(messages))) => (number, messages),
-        Ok((number, Parcel::Done)) => {
-            lock(hosts).host(host).done = true;
-            return Ok(Some(number));
-        }
+    let (number, parcel) = match parcel::unpack(bytes) {
+        Ok(unpacked) => unpacked,
         Err(e) => {
             eprintln!("host {host}: {e}");
             lock(hosts).host(host).rejected += 1;
             return Ok(None);
+        }
+    };
+    {
+        let mut hosts = lock(hosts);
+        let host = hosts.host(host);
+        // Sent again after the link came back, and taken before: acknowledged again only.
+        if number <= host.parcels_taken {
+            return Ok(Some(number));
+        }
+        host.parcels_taken = number;
+    }
+    let messages = match parcel {
+        Parcel::Messages(messages) => messages,
+        Parcel::Done => {
+            lock(hosts).host(host).done = true;
+            return Ok(Some(number));
         }
     };
     for message in messages {
@@ -397,4 +409,80 @@ fn carry_down(shared: &Shared) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::parcel::Packer;
+    use wire::{ChannelTransport, EpisodeEnd, Origin};
+
+    fn episode_end(actor: u32, seq: u64) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        let end = EpisodeEnd {
+            origin: Origin {
+                actor,
+                incarnation: 0,
+                seq,
+            },
+            episode: seq,
+            goal: 1,
+            grasped: None,
+            steps: 1,
+            trial: false,
+        };
+        wire::encode_into(&Message::EpisodeEnd(end), &mut bytes);
+        bytes
+    }
+
+    fn parcel(number: u64, messages: &[Vec<u8>]) -> Vec<u8> {
+        let mut packer = Packer::default();
+        for message in messages {
+            packer.push(message);
+        }
+        packer.seal(number)
+    }
+
+    #[test]
+    fn a_parcel_sent_again_is_acknowledged_and_taken_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let hosts = Mutex::new(
+            Hosts::load(Admission {
+                run_id: "r".into(),
+                config: String::new(),
+                local_actors: 1,
+                hosts_file: dir.path().join("hosts.json"),
+            })
+            .unwrap(),
+        );
+        let join = || {
+            lock(&hosts).admit(&JoinRequest {
+                run_id: "r".into(),
+                host: "h".into(),
+                actors: 1,
+            })
+        };
+        assert!(matches!(join(), JoinReply::Accepted(_)));
+        let transport = ChannelTransport::new();
+        let mut steps_in = transport.subscriber(Topic::Steps).unwrap();
+        let mut steps_out = transport.publisher(Topic::Steps).unwrap();
+        let mut take = |bytes: &[u8]| take_parcel(&hosts, "h", bytes, &mut *steps_out).unwrap();
+        let (first, second) = (
+            parcel(1, &[episode_end(1, 0)]),
+            parcel(2, &[episode_end(1, 1)]),
+        );
+        assert_eq!(take(&first), Some(1));
+        assert_eq!(take(&second), Some(2));
+        // The link dropped before the acknowledgements arrived: both come again.
+        assert_eq!(take(&first), Some(1));
+        assert_eq!(take(&second), Some(2));
+        let mut delivered = 0;
+        while steps_in.receive(&mut |_| delivered += 1).unwrap() {}
+        assert_eq!(delivered, 2);
+        assert_eq!(lock(&hosts).host("h").episode_ends_received, 2);
+        // A host that joins again numbers its parcels from 1 again.
+        assert!(matches!(join(), JoinReply::Accepted(_)));
+        assert_eq!(take(&parcel(1, &[episode_end(1, 2)])), Some(1));
+        assert_eq!(lock(&hosts).host("h").episode_ends_received, 3);
+    }
 }

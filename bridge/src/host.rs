@@ -5,9 +5,10 @@
 //!
 //! Steps are published only while the central host listens: while it does not (its link is
 //! down), the up thread holds its parcel and stops reading, so the actors wait on their
-//! bounded queues; memory does not grow.
+//! bounded queues; memory does not grow. Parcels the link lost are sent again when it is back.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -15,6 +16,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use wire::{Control, Message, Role, Status, Topic, Transport};
 use zenoh::Wait;
+use zenoh::bytes::ZBytes;
 use zenoh::handlers::RingChannelHandler;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
@@ -68,6 +70,8 @@ pub struct UpReport {
     pub sent_bytes: u64,
     /// Messages thrown away because the central host was gone for good.
     pub abandoned: u64,
+    /// Parcels sent again because the link dropped before the central host took them.
+    pub resent: u64,
 }
 
 /// Flags the join loop and the bridge's threads share.
@@ -81,6 +85,11 @@ struct Flags {
     stop_ordered: AtomicBool,
     /// Since when the central host's presence has not been seen (None while it is).
     central_gone_since: Mutex<Option<Instant>>,
+    /// Times the central host's presence came back (or first came): parcels it may not
+    /// have taken are sent again.
+    central_returns: AtomicU64,
+    /// When the up thread last waited to send: the actors were held back then.
+    held_at: Mutex<Option<Instant>>,
     /// Stop the down thread.
     closed: AtomicBool,
 }
@@ -155,6 +164,12 @@ impl HostBridge {
         lock(&self.flags.central_gone_since).map_or(Duration::ZERO, |since| since.elapsed())
     }
 
+    /// When this host last held its actors back, waiting for the central host to listen
+    /// or to take its parcels: actors waiting in their sends are not hung.
+    pub fn held_at(&self) -> Option<Instant> {
+        *lock(&self.flags.held_at)
+    }
+
     /// Whether a bridge thread has ended (its error comes with [`HostBridge::finish`]).
     pub fn failed(&self) -> bool {
         self.up.is_finished() || self.down.is_finished()
@@ -193,18 +208,36 @@ fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     mutex.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// The central host's acknowledgements of this host's parcels.
+/// The parcels this host sent that the central host has not taken yet, and its
+/// acknowledgements. A parcel in flight when the link dropped is lost with the Zenoh session
+/// that carried it: the window keeps every parcel until it is taken and sends them all again
+/// once the central host listens again (it takes each number once).
 struct Window {
     taken: Subscriber<RingChannelHandler<Sample>>,
     /// The newest parcel the central host took.
     newest_taken: u64,
+    /// Parcels sent and not taken, oldest first: [`PARCELS_IN_FLIGHT`] at most.
+    unacked: VecDeque<(u64, ZBytes)>,
+    /// The central host's returns seen (`Flags::central_returns`).
+    returns_seen: u64,
+    /// Parcels sent again after the link came back.
+    resent: u64,
 }
 
 impl Window {
+    fn new(taken: Subscriber<RingChannelHandler<Sample>>) -> Self {
+        Self {
+            taken,
+            newest_taken: 0,
+            unacked: VecDeque::new(),
+            returns_seen: 0,
+            resent: 0,
+        }
+    }
+
     /// Waits until parcel `number` may go: the central host listens and has taken all but a
-    /// few of those before it. False when told to abandon. Parcels in flight when the
-    /// central host's subscription went away are not waited for: they arrived or are lost
-    /// (counted by the central host from the actors' reports).
+    /// few of those before it. False when told to abandon. While it waits the actors are
+    /// held back (`Flags::held_at`).
     fn wait_for_room(
         &mut self,
         publisher: &Publisher<'_>,
@@ -221,6 +254,16 @@ impl Window {
                     self.newest_taken = self.newest_taken.max(u64::from_le_bytes(*bytes));
                 }
             }
+            while self
+                .unacked
+                .front()
+                .is_some_and(|&(n, _)| n <= self.newest_taken)
+            {
+                self.unacked.pop_front();
+            }
+            let returns = flags.central_returns.load(Ordering::Acquire);
+            relinked |= returns != self.returns_seen;
+            self.returns_seen = returns;
             let matching = publisher
                 .matching_status()
                 .wait()
@@ -230,16 +273,35 @@ impl Window {
                 relinked = true;
             } else {
                 if relinked {
-                    self.newest_taken = self.newest_taken.max(number - 1);
+                    for (_, parcel) in &self.unacked {
+                        put(publisher, parcel.clone())?;
+                        self.resent += 1;
+                    }
                     relinked = false;
                 }
                 if number - 1 - self.newest_taken.min(number - 1) < PARCELS_IN_FLIGHT {
                     return Ok(true);
                 }
             }
+            *lock(&flags.held_at) = Some(Instant::now());
             std::thread::sleep(POLL);
         }
     }
+
+    /// Sends parcel `number` and keeps it until it is taken.
+    fn send(&mut self, publisher: &Publisher<'_>, number: u64, parcel: Vec<u8>) -> Result<()> {
+        let parcel = ZBytes::from(parcel);
+        put(publisher, parcel.clone())?;
+        self.unacked.push_back((number, parcel));
+        Ok(())
+    }
+}
+
+fn put(publisher: &Publisher<'_>, parcel: ZBytes) -> Result<()> {
+    publisher
+        .put(parcel)
+        .wait()
+        .map_err(|e| anyhow::anyhow!("sending steps: {e}"))
 }
 
 /// The local actors' steps and episode ends up in parcels, their reports as they come.
@@ -254,10 +316,10 @@ fn carry_up(
     let mut status_in = transport.subscriber(Topic::Status)?;
     let steps_out = link::publisher(session, Stream::Steps, keys.stream(Stream::Steps, host))?;
     let status_out = link::publisher(session, Stream::Status, keys.stream(Stream::Status, host))?;
-    let mut window = Window {
-        taken: link::newest_subscriber(session, keys.stream(Stream::Taken, host))?,
-        newest_taken: 0,
-    };
+    let mut window = Window::new(link::newest_subscriber(
+        session,
+        keys.stream(Stream::Taken, host),
+    )?);
     let mut report = UpReport::default();
     let mut packer = Packer::default();
     loop {
@@ -297,19 +359,13 @@ fn carry_up(
         }
         let parcel = packer.seal(number);
         report.sent_bytes += parcel.len() as u64;
-        steps_out
-            .put(parcel)
-            .wait()
-            .map_err(|e| anyhow::anyhow!("sending steps: {e}"))?;
+        window.send(&steps_out, number, parcel)?;
         report.messages += messages;
         report.parcels += 1;
     }
     let number = report.parcels + 1;
     if window.wait_for_room(&steps_out, number, flags)? {
-        steps_out
-            .put(parcel::done(number))
-            .wait()
-            .map_err(|e| anyhow::anyhow!("saying done: {e}"))?;
+        window.send(&steps_out, number, parcel::done(number))?;
         // Leave once the central host took it (its session may otherwise end first).
         let deadline = Instant::now() + Duration::from_secs(10);
         while window.newest_taken < number && Instant::now() < deadline {
@@ -317,6 +373,7 @@ fn carry_up(
             std::thread::sleep(POLL);
         }
     }
+    report.resent = window.resent;
     Ok(report)
 }
 
@@ -355,7 +412,11 @@ fn carry_down(
     while !flags.closed.load(Ordering::Acquire) {
         while let Some(sample) = central.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
             let gone = sample.kind() != SampleKind::Put;
-            *lock(&flags.central_gone_since) = gone.then(Instant::now);
+            let mut gone_since = lock(&flags.central_gone_since);
+            if !gone && gone_since.is_some() {
+                flags.central_returns.fetch_add(1, Ordering::AcqRel);
+            }
+            *gone_since = gone.then(Instant::now);
         }
         while let Some(sample) = control_in.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
             if let Ok(Message::Control(Control::Stop(Role::Actor))) =

@@ -10,9 +10,9 @@ pub mod host;
 pub mod join;
 pub mod link;
 pub mod parcel;
-pub mod refusals;
 pub mod secret;
 pub mod session;
+pub mod traces;
 
 pub use admission::{Admission, HostNews, HostReport};
 pub use central::Central;

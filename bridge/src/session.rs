@@ -50,11 +50,20 @@ const RX_BUFFER_BYTES: usize = 16 << 20;
 /// The largest message a link reassembles: a step at 448 x 448 with room to spare.
 const MAX_MESSAGE_BYTES: usize = 64 << 20;
 
-/// How long a host may be silent before its link is declared dead (Zenoh's lease, in ms).
-pub const LEASE_MS: u64 = 5_000;
+/// How long the central host waits for a silent joined host before it ends the session
+/// (the lease a host announces, in ms).
+pub const HOST_LEASE_MS: u64 = 5_000;
 
-/// The settings both sides share.
-fn base(mode: &str) -> Result<Config> {
+/// How long a joined host waits for a silent central host (the lease the central host
+/// announces, in ms): longer than [`HOST_LEASE_MS`], so that after a cut link the central
+/// host has ended the session before the joined host reconnects. Zenoh 1.10 would otherwise
+/// add the reconnecting host's link to the central host's stale session, and never send it
+/// the central host's declarations again (eclipse-zenoh/zenoh#2806): the host would wait
+/// for a central host it can no longer see.
+pub const CENTRAL_LEASE_MS: u64 = 2 * HOST_LEASE_MS;
+
+/// The settings both sides share; `lease_ms` is the lease this side announces.
+fn base(mode: &str, lease_ms: u64) -> Result<Config> {
     let mut config = Config::default();
     let settings: [(&str, String); 10] = [
         ("mode", format!("{mode:?}")),
@@ -74,7 +83,7 @@ fn base(mode: &str) -> Result<Config> {
             "transport/link/rx/max_message_size",
             MAX_MESSAGE_BYTES.to_string(),
         ),
-        ("transport/link/tx/lease", LEASE_MS.to_string()),
+        ("transport/link/tx/lease", lease_ms.to_string()),
         // Shared memory between the hosts' Zenoh sessions could not cross a machine, and the
         // hosts' own steps travel over iceoryx2.
         ("transport/shared_memory/enabled", "false".into()),
@@ -95,7 +104,7 @@ fn set(config: &mut Config, key: &str, value: &str) -> Result<()> {
 /// The central host's session: listens at `endpoint` and admits only hosts that present
 /// `secret` (Zenoh checks them against the secret file itself).
 pub fn listen(endpoint: &Endpoint, secret: &RunSecret) -> Result<Session> {
-    let mut config = base("router")?;
+    let mut config = base("router", CENTRAL_LEASE_MS)?;
     set(
         &mut config,
         "listen/endpoints",
@@ -114,7 +123,7 @@ pub fn listen(endpoint: &Endpoint, secret: &RunSecret) -> Result<Session> {
 /// A joined host's session: connects to the central host at `endpoint` as run `run_id` with
 /// `secret`, and reconnects by itself when the link drops.
 pub fn connect(endpoint: &Endpoint, run_id: &str, secret: &RunSecret) -> Result<Session> {
-    let mut config = base("client")?;
+    let mut config = base("client", HOST_LEASE_MS)?;
     set(
         &mut config,
         "connect/endpoints",

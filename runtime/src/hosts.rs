@@ -67,7 +67,7 @@ impl HostLink {
         let Some(pending) = self.pending.take() else {
             return Ok(());
         };
-        bridge::refusals::report();
+        bridge::traces::install(true);
         let session = bridge::session::listen(&pending.endpoint, &pending.secret)?;
         let run_id = pending.admission.run_id.clone();
         self.central = Some(Central::start(

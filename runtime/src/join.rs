@@ -67,6 +67,8 @@ pub struct HostSummary {
     /// Steps and episode ends sent to the central host.
     pub messages_sent: u64,
     pub parcels_sent: u64,
+    /// Parcels sent again because the link dropped before the central host took them.
+    pub parcels_resent: u64,
     /// Bytes before and after compression.
     pub raw_bytes: u64,
     pub sent_bytes: u64,
@@ -102,6 +104,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         Some(name) => name.clone(),
         None => machine_name()?,
     };
+    bridge::traces::install(false);
     let session = bridge::session::connect(&args.endpoint, &args.run_id, &secret)?;
     let keys = Keys::new(&args.run_id);
     let request = JoinRequest {
@@ -191,10 +194,11 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     );
     write_json(&dir.report("host"), &summary)?;
     println!(
-        "host {host} stopped ({ended}): {} steps and episode ends sent in {} parcels ({:.1}x compressed), {} thrown away",
+        "host {host} stopped ({ended}): {} steps and episode ends sent in {} parcels ({:.1}x compressed, {} sent again after the link dropped), {} thrown away",
         sent.messages,
         sent.parcels,
         sent.raw_bytes as f64 / sent.sent_bytes.max(1) as f64,
+        sent.resent,
         sent.abandoned
     );
     drop(status);
@@ -218,6 +222,8 @@ fn follow(
 ) -> Result<End> {
     let mut last_news = Instant::now();
     loop {
+        // Actors waiting for the central host to listen or to take their steps are not hung.
+        watch.actors_held_at(bridge.held_at());
         watch.read(status, supervisor)?;
         if bridge.stop_ordered() {
             return Ok(End::Ordered);
@@ -261,6 +267,7 @@ fn summary(
         incarnation: placement.incarnation,
         messages_sent: sent.messages,
         parcels_sent: sent.parcels,
+        parcels_resent: sent.resent,
         raw_bytes: sent.raw_bytes,
         sent_bytes: sent.sent_bytes,
         abandoned: sent.abandoned,

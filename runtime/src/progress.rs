@@ -273,11 +273,17 @@ pub struct Watch {
     pub progress: Progress,
     failures: Vec<String>,
     last_heard: BTreeMap<String, Instant>,
-    /// When the buffer last said its rate limiter held the actors back.
+    /// When the actors were last held back: by the buffer's rate limiter, or on a joined
+    /// host by its link to the central host.
     actors_held: Option<Instant>,
 }
 
 impl Watch {
+    /// The actors were held back at `at` by something other than the buffer's reports.
+    pub fn actors_held_at(&mut self, at: Option<Instant>) {
+        self.actors_held = self.actors_held.max(at);
+    }
+
     /// Takes in the waiting reports, kills roles silent too long, then lets the supervisor
     /// deal with roles that exited.
     pub fn read(&mut self, status: &mut Inbox, supervisor: &mut Supervisor) -> Result<()> {

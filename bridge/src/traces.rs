@@ -1,8 +1,12 @@
-//! The central host's word on a host it turned away. Zenoh refuses a host with the wrong run
-//! id or secret inside its handshake and says so only in a debug-level trace of its own; the
-//! central host listens for that trace alone and prints it.
+//! What a host prints of Zenoh's own traces. The central host's word on a host it turned
+//! away: Zenoh refuses a host with the wrong run id or secret inside its handshake and says so
+//! only in a debug-level trace of its own; the central host listens for that trace alone and
+//! prints it. And, on either side, the traces a user asks for with `RUST_LOG` (for instance
+//! `RUST_LOG=zenoh=debug`: each connection attempt, lease and reconnection), on stderr.
 
 use std::fmt::Debug;
+use std::io::IsTerminal;
+use std::str::FromStr;
 
 use tracing::Level;
 use tracing::field::{Field, Visit};
@@ -13,12 +17,29 @@ use tracing_subscriber::{Layer, Registry};
 /// Where Zenoh traces a handshake it refused.
 const HANDSHAKE: &str = "zenoh_transport::unicast::establishment";
 
-/// Prints a line for every host Zenoh's authentication turns away. Installs this process's
-/// tracing subscriber: call it once, in the central host, before it listens.
-pub fn report() {
-    let layer = Refusals.with_filter(Targets::new().with_target(HANDSHAKE, Level::DEBUG));
-    // Another subscriber already installed keeps its place; refusals then go unprinted.
-    let _ = tracing::subscriber::set_global_default(Registry::default().with(layer));
+/// The variable naming the traces a user wants printed (tracing's target=level syntax).
+const LOG_VAR: &str = "RUST_LOG";
+
+/// Installs this process's tracing subscriber: on the central host (`central`) a line for
+/// every host Zenoh's authentication turns away, and on any host the traces `RUST_LOG` asks
+/// for. Call it once, before the Zenoh session opens.
+pub fn install(central: bool) {
+    let refusals =
+        central.then(|| Refusals.with_filter(Targets::new().with_target(HANDSHAKE, Level::DEBUG)));
+    let asked = std::env::var(LOG_VAR).ok().and_then(|text| {
+        Targets::from_str(&text)
+            .inspect_err(|e| eprintln!("{LOG_VAR}={text:?} is not target=level,...: {e}"))
+            .ok()
+    });
+    let printed = asked.map(|targets| {
+        tracing_subscriber::fmt::layer()
+            .with_writer(std::io::stderr)
+            .with_ansi(std::io::stderr().is_terminal())
+            .with_filter(targets)
+    });
+    // Another subscriber already installed keeps its place; these then go unprinted.
+    let _ =
+        tracing::subscriber::set_global_default(Registry::default().with(refusals).with(printed));
 }
 
 struct Refusals;
