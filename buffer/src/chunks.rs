@@ -1,9 +1,13 @@
 //! A vector kept in shared chunks: a clone shares every chunk, and a write to a chunk that a
 //! clone still holds copies that chunk alone (copy on write). A consistent copy of a large
-//! ring, which a background snapshot takes, then costs its chunks, not its items.
+//! ring (its transitions, generations and priorities), which a background snapshot takes,
+//! then costs its chunks, not its items.
 
 use std::ops::Index;
 use std::sync::Arc;
+
+use serde::ser::SerializeSeq;
+use serde::{Serialize, Serializer};
 
 /// Items per chunk: 4,096 transitions are about 256 KB, copied at most once per snapshot.
 const CHUNK: usize = 4096;
@@ -46,8 +50,23 @@ impl<T: Clone> SharedChunks<T> {
         Arc::make_mut(&mut self.chunks[i / CHUNK])[i % CHUNK] = item;
     }
 
+    pub(crate) fn get(&self, i: usize) -> Option<&T> {
+        (i < self.len).then(|| &self[i])
+    }
+
     pub(crate) fn iter(&self) -> impl Iterator<Item = &T> {
         self.chunks.iter().flat_map(|chunk| chunk.iter())
+    }
+}
+
+/// As a sequence of its items.
+impl<T: Clone + Serialize> Serialize for SharedChunks<T> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        // Its length first: a flattened iterator cannot tell it, and postcard needs it.
+        let mut seq = serializer.serialize_seq(Some(self.len))?;
+        self.iter()
+            .try_for_each(|item| seq.serialize_element(item))?;
+        seq.end()
     }
 }
 
@@ -94,5 +113,9 @@ mod tests {
         assert!(Arc::ptr_eq(&items.chunks[2], &copy.chunks[2]));
         assert_eq!(copy.iter().copied().max(), Some(3 * CHUNK as u32 + 4));
         assert_ne!(items, copy);
+        assert_eq!(
+            (items.get(3 * CHUNK + 5), items.get(3 * CHUNK + 6)),
+            (Some(&7), None)
+        );
     }
 }

@@ -26,5 +26,5 @@ pub use observation::{CorruptObservation, PackedObservation, StoredTransition};
 pub use rate_limit::RateLimiter;
 pub use relabel::{EpisodeAssembler, Pending, Ready};
 pub use replay::{Batch, PrioritizedReplay};
-pub use store::{ReplayBuffer, Serving, Stats};
+pub use store::{ReplayBuffer, ReplayCopy, Serving, Stats};
 pub use sum_tree::SumTree;

@@ -46,18 +46,18 @@ impl Batch<'_> {
     }
 }
 
-/// Fixed-capacity storage of one primitive: a ring of transitions and the sum tree of their
-/// priorities raised to alpha. Snapshots write each shared observation once
-/// ([`crate::snapshot`]).
+/// Fixed-capacity storage of one primitive: a ring of transitions, their generations and
+/// priorities, all in shared chunks, so that a copy (a snapshot's) is cheap
+/// ([`SharedChunks`]). Its sum tree is kept beside it ([`PrioritizedReplay`]). Snapshots
+/// write each shared observation once ([`crate::snapshot`]).
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct Ring {
-    /// In shared chunks, so that a snapshot's copy is cheap ([`SharedChunks`]).
     pub(crate) items: SharedChunks<StoredTransition>,
     /// The generation of the item in each slot.
-    pub(crate) generations: Vec<u64>,
+    pub(crate) generations: SharedChunks<u64>,
     /// The priority of each slot after the epsilon floor (the tree holds it raised to alpha).
-    pub(crate) priorities: Vec<f64>,
-    pub(crate) tree: SumTree,
+    pub(crate) priorities: SharedChunks<f64>,
+    pub(crate) capacity: usize,
     /// Inserts so far: the next item's generation, and (mod capacity) its slot.
     pub(crate) inserted: u64,
     /// The largest priority given so far (before alpha), for items inserted without one.
@@ -66,14 +66,13 @@ pub(crate) struct Ring {
 
 impl Ring {
     fn new(capacity: usize) -> Self {
-        // Reserved whole: the pages are taken only as slots fill, and a large ring never
-        // copies itself to grow (nor holds its old and new copies at once). Items come in
-        // chunks as they are needed.
+        // Items come in chunks as slots fill: a large ring never copies itself to grow (nor
+        // holds its old and new copies at once).
         Self {
             items: SharedChunks::default(),
-            generations: Vec::with_capacity(capacity),
-            priorities: Vec::with_capacity(capacity),
-            tree: SumTree::new(capacity),
+            generations: SharedChunks::default(),
+            priorities: SharedChunks::default(),
+            capacity,
             inserted: 0,
             // Schaul et al. start at 1: new experience is seen at least once early on.
             max_priority: 1.0,
@@ -81,7 +80,7 @@ impl Ring {
     }
 
     fn capacity(&self) -> usize {
-        self.tree.capacity()
+        self.capacity
     }
 
     /// The slot `key` names if it still holds the item it was issued for.
@@ -92,7 +91,7 @@ impl Ring {
 
     /// Puts an item in the next slot (the oldest when full) with its priority floored at
     /// `epsilon`, or the largest so far; returns the slot, its generation and the priority.
-    /// The caller sets the slot's weight in the tree.
+    /// The caller sets the slot's weight in its tree.
     fn put(
         &mut self,
         transition: StoredTransition,
@@ -109,8 +108,8 @@ impl Ring {
             self.priorities.push(p);
         } else {
             self.items.set(slot, transition);
-            self.generations[slot] = generation;
-            self.priorities[slot] = p;
+            self.generations.set(slot, generation);
+            self.priorities.set(slot, p);
         }
         self.inserted += 1;
         (slot, generation, p)
@@ -119,7 +118,7 @@ impl Ring {
     fn check(&self, capacity: usize) -> Result<(), String> {
         let len = self.items.len();
         let expected = usize::try_from(self.inserted).map_or(capacity, |n| n.min(capacity));
-        if self.tree.capacity() != capacity
+        if self.capacity != capacity
             || len != expected
             || self.generations.len() != len
             || self.priorities.len() != len
@@ -127,20 +126,38 @@ impl Ring {
             return Err(format!(
                 "a ring of capacity {} holds {len} items and {} generations after {} inserts, \
                  the config says capacity {capacity}",
-                self.tree.capacity(),
+                self.capacity,
                 self.generations.len(),
                 self.inserted
             ));
         }
-        if (len..capacity).any(|slot| self.tree.get(slot) != 0.0) {
-            return Err("an empty slot has a priority".into());
+        // Their sum tree is built from them: a bad one would corrupt every sum above it.
+        if let Some(bad) = self
+            .priorities
+            .iter()
+            .find(|p| !(p.is_finite() && **p >= 0.0))
+        {
+            return Err(format!("a priority of {bad}"));
         }
         Ok(())
     }
+
+    /// The sum tree of the ring's priorities raised to `alpha`.
+    fn tree(&self, alpha: f64) -> SumTree {
+        let mut tree = SumTree::new(self.capacity);
+        let weights: Vec<f64> = self.priorities.iter().map(|p| p.powf(alpha)).collect();
+        tree.set_many(0, &weights);
+        tree
+    }
 }
 
+/// The sum trees of the two rings (push, grasp): their priorities raised to alpha, a
+/// function of the rings. Left out of a snapshot's copy and file, rebuilt when it is read.
+#[derive(Debug, Default, PartialEq)]
+struct Trees(Vec<SumTree>);
+
 /// Push and grasp rings with proportional prioritisation and annealed importance sampling.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, PartialEq, Serialize, Deserialize)]
 pub struct PrioritizedReplay {
     alpha: f64,
     beta_start: f64,
@@ -152,6 +169,8 @@ pub struct PrioritizedReplay {
     sampled: u64,
     /// Priority updates dropped because their slot had been overwritten (or never existed).
     stale_updates: u64,
+    #[serde(skip)]
+    trees: Trees,
 }
 
 impl PrioritizedReplay {
@@ -169,20 +188,46 @@ impl PrioritizedReplay {
             grasp: Ring::new(slots),
             sampled: 0,
             stale_updates: 0,
+            trees: Trees(vec![SumTree::new(slots), SumTree::new(slots)]),
         })
+    }
+
+    /// A copy to save (a snapshot's): the rings share their chunks with this replay's, and
+    /// the sum trees are left behind, so it takes microseconds at any size. It cannot sample.
+    pub(crate) fn copy_to_save(&self) -> Self {
+        Self {
+            push: self.push.clone(),
+            grasp: self.grasp.clone(),
+            trees: Trees::default(),
+            ..*self
+        }
+    }
+
+    /// Builds the sum trees from the rings' priorities (a snapshot just read).
+    pub(crate) fn rebuild_trees(&mut self) {
+        self.trees = Trees(vec![
+            self.push.tree(self.alpha),
+            self.grasp.tree(self.alpha),
+        ]);
+    }
+
+    fn tree(&self, primitive: Primitive) -> &SumTree {
+        &self.trees.0[primitive as usize]
+    }
+
+    /// The ring of `primitive` and its sum tree.
+    fn ring_and_tree_mut(&mut self, primitive: Primitive) -> (&mut Ring, &mut SumTree) {
+        let tree = &mut self.trees.0[primitive as usize];
+        match primitive {
+            Primitive::Push => (&mut self.push, tree),
+            Primitive::Grasp => (&mut self.grasp, tree),
+        }
     }
 
     fn ring(&self, primitive: Primitive) -> &Ring {
         match primitive {
             Primitive::Push => &self.push,
             Primitive::Grasp => &self.grasp,
-        }
-    }
-
-    fn ring_mut(&mut self, primitive: Primitive) -> &mut Ring {
-        match primitive {
-            Primitive::Push => &mut self.push,
-            Primitive::Grasp => &mut self.grasp,
         }
     }
 
@@ -269,11 +314,11 @@ impl PrioritizedReplay {
         let mut runs: [(usize, Vec<f64>); 2] = Default::default();
         for (transition, priority) in items {
             let primitive = transition.primitive();
-            let ring = self.ring_mut(primitive);
+            let (ring, tree) = self.ring_and_tree_mut(primitive);
             let (slot, generation, p) = ring.put(transition, priority, epsilon);
             let (start, weights) = &mut runs[primitive as usize];
             if *start + weights.len() != slot {
-                ring.tree.set_many(*start, weights);
+                tree.set_many(*start, weights);
                 (*start, *weights) = (slot, Vec::new());
             }
             weights.push(p.powf(alpha));
@@ -286,7 +331,9 @@ impl PrioritizedReplay {
         for (primitive, (start, weights)) in
             [Primitive::Push, Primitive::Grasp].into_iter().zip(runs)
         {
-            self.ring_mut(primitive).tree.set_many(start, &weights);
+            self.ring_and_tree_mut(primitive)
+                .1
+                .set_many(start, &weights);
         }
         Ok(keys)
     }
@@ -296,15 +343,15 @@ impl PrioritizedReplay {
     pub fn update_priority(&mut self, key: &Key, priority: f64) -> Result<bool, ReplayError> {
         check_priority(priority)?;
         let (alpha, epsilon) = (self.alpha, self.epsilon);
-        let ring = self.ring_mut(key.primitive);
+        let (ring, tree) = self.ring_and_tree_mut(key.primitive);
         let Some(slot) = ring.live_slot(key) else {
             self.stale_updates += 1;
             return Ok(false);
         };
         let p = priority.max(epsilon);
         ring.max_priority = ring.max_priority.max(p);
-        ring.priorities[slot] = p;
-        ring.tree.set(slot, p.powf(alpha));
+        ring.priorities.set(slot, p);
+        tree.set(slot, p.powf(alpha));
         Ok(true)
     }
 
@@ -326,9 +373,9 @@ impl PrioritizedReplay {
         }
         let beta = self.beta();
         self.sampled += n as u64;
-        let ring = self.ring(primitive);
+        let (ring, tree) = (self.ring(primitive), self.tree(primitive));
         // Every live slot has at least epsilon^alpha > 0, so the total is positive.
-        let total = ring.tree.total();
+        let total = tree.total();
         let len = ring.items.len() as f64;
         let stratum = total / n as f64;
         let mut items = Vec::with_capacity(n);
@@ -344,7 +391,7 @@ impl PrioritizedReplay {
             for (k, prefix) in prefixes[..m].iter_mut().enumerate() {
                 *prefix = ((start + k) as f64 + rng.random::<f64>()) * stratum;
             }
-            let found = ring.tree.find_many(&prefixes[..m], &mut slots[..m]);
+            let found = tree.find_many(&prefixes[..m], &mut slots[..m]);
             assert!(found, "total is positive");
             // A loop of bare loads, so that the scattered reads overlap.
             for (generation, &slot) in generations.iter_mut().zip(&slots[..m]) {
@@ -352,7 +399,7 @@ impl PrioritizedReplay {
             }
             let found = slots[..m].iter().zip(&generations);
             for (&slot, &generation) in found {
-                let probability = ring.tree.get(slot) / total;
+                let probability = tree.get(slot) / total;
                 probabilities.push(probability);
                 items.push(BatchItem {
                     key: Key {
@@ -382,7 +429,8 @@ impl PrioritizedReplay {
         crate::snapshot::check_ring_observations(&self.grasp, Primitive::Grasp)
     }
 
-    /// Checks the invariants a snapshot must satisfy against the config it carries.
+    /// Checks the invariants a snapshot must satisfy against the config it carries (before
+    /// [`rebuild_trees`](Self::rebuild_trees)).
     pub(crate) fn check(&self, config: &BufferConfig) -> Result<(), String> {
         let slots = config.slots().map_err(|e| e.to_string())?;
         self.push.check(slots)?;

@@ -2,7 +2,8 @@
 //! limiter, open episodes) in one file, written atomically and checked when read.
 //!
 //! Layout: 8 bytes of magic, the format version (u32), the payload's length (u64) and its
-//! xxh3 hash (u64), all little-endian, then the payload (postcard). A ring writes each packed
+//! xxh3 hash (u64), all little-endian, then the payload (postcard). The rings' sum trees are
+//! not written: they are their priorities raised to alpha, rebuilt when read. A ring writes each packed
 //! observation once, as it lies in memory (compressed, with its own hash), and its items name
 //! theirs by index, so relabelled copies share it again when read. The hashes turn a flipped
 //! byte into a clear error instead of a plausible but wrong buffer: the observation's own
@@ -19,15 +20,15 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use sim::Primitive;
 use xxhash_rust::xxh3::Xxh3;
 
+use crate::chunks::SharedChunks;
 use crate::error::{SnapshotError, SnapshotErrorKind};
 use crate::observation::PackedObservation;
 use crate::replay::Ring;
-use crate::store::ReplayBuffer;
-use crate::sum_tree::SumTree;
+use crate::store::{ReplayBuffer, ReplayCopy};
 
 const MAGIC: &[u8; 8] = b"PGREPLAY";
 /// Bump when the payload's layout changes.
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 const HEADER: usize = 8 + 4 + 8 + 8;
 
 /// Counts and hashes what passes through, so the payload streams to disk without a copy.
@@ -51,6 +52,22 @@ impl<W: Write> Write for Hashing<W> {
 }
 
 impl ReplayBuffer {
+    /// Writes the buffer to `path` (see [`ReplayCopy::save`]).
+    pub fn save(&self, path: &Path) -> Result<(), SnapshotError> {
+        self.copy_to_save().save(path)
+    }
+
+    /// Reads a buffer written by [`save`](Self::save), checking its header, length, hash and
+    /// the consistency of what it holds.
+    pub fn load(path: &Path) -> Result<Self, SnapshotError> {
+        read(path).map_err(|kind| SnapshotError {
+            path: path.to_path_buf(),
+            kind,
+        })
+    }
+}
+
+impl ReplayCopy {
     /// Writes the buffer to `path`: to `<path>.tmp` first, synced, then renamed over `path`,
     /// so a crash mid-write leaves the previous snapshot intact.
     pub fn save(&self, path: &Path) -> Result<(), SnapshotError> {
@@ -67,7 +84,7 @@ impl ReplayBuffer {
                 len: 0,
                 hash: Xxh3::new(),
             };
-            postcard::to_io(self, &mut hashing)?;
+            postcard::to_io(&self.0, &mut hashing)?;
             let (len, hash) = (hashing.len, hashing.hash.digest());
             let mut file = hashing.inner.into_inner().map_err(|e| e.into_error())?;
             file.seek(SeekFrom::Start(0))?;
@@ -81,15 +98,6 @@ impl ReplayBuffer {
             return Err(fail(kind));
         }
         fs::rename(&tmp, path).map_err(|e| fail(e.into()))
-    }
-
-    /// Reads a buffer written by [`save`](Self::save), checking its header, length, hash and
-    /// the consistency of what it holds.
-    pub fn load(path: &Path) -> Result<Self, SnapshotError> {
-        read(path).map_err(|kind| SnapshotError {
-            path: path.to_path_buf(),
-            kind,
-        })
     }
 }
 
@@ -145,7 +153,7 @@ fn read(path: &Path) -> Result<ReplayBuffer, SnapshotErrorKind> {
     let intact = || xxhash_rust::xxh3::xxh3_64(payload) == hash;
     // Decoded before the payload's hash is checked, so that a damaged observation is named
     // by its own hash; a payload that does not decode is reported as damaged when it is.
-    let buffer: ReplayBuffer = match postcard::from_bytes(payload) {
+    let mut buffer: ReplayBuffer = match postcard::from_bytes(payload) {
         Ok(buffer) => buffer,
         Err(_) if !intact() => return Err(SnapshotErrorKind::Checksum),
         Err(e) => return Err(e.into()),
@@ -157,7 +165,9 @@ fn read(path: &Path) -> Result<ReplayBuffer, SnapshotErrorKind> {
     if !intact() {
         return Err(SnapshotErrorKind::Checksum);
     }
-    buffer.check().map_err(SnapshotErrorKind::Invalid)?;
+    buffer
+        .check_and_index()
+        .map_err(SnapshotErrorKind::Invalid)?;
     Ok(buffer)
 }
 
@@ -167,9 +177,9 @@ struct RingOut<'a> {
     observations: Vec<&'a PackedObservation>,
     /// Each item with the index of its observation.
     items: Vec<Transition<u32>>,
-    generations: &'a [u64],
-    priorities: &'a [f64],
-    tree: &'a SumTree,
+    generations: &'a SharedChunks<u64>,
+    priorities: &'a SharedChunks<f64>,
+    capacity: usize,
     inserted: u64,
     max_priority: f64,
 }
@@ -181,7 +191,7 @@ struct RingIn {
     items: Vec<Transition<u32>>,
     generations: Vec<u64>,
     priorities: Vec<f64>,
-    tree: SumTree,
+    capacity: usize,
     inserted: u64,
     max_priority: f64,
 }
@@ -206,7 +216,7 @@ impl Serialize for Ring {
             items,
             generations: &self.generations,
             priorities: &self.priorities,
-            tree: &self.tree,
+            capacity: self.capacity,
             inserted: self.inserted,
             max_priority: self.max_priority,
         }
@@ -234,9 +244,9 @@ impl<'de> Deserialize<'de> for Ring {
             .collect::<Result<_, D::Error>>()?;
         Ok(Ring {
             items,
-            generations: ring.generations,
-            priorities: ring.priorities,
-            tree: ring.tree,
+            generations: ring.generations.into_iter().collect(),
+            priorities: ring.priorities.into_iter().collect(),
+            capacity: ring.capacity,
             inserted: ring.inserted,
             max_priority: ring.max_priority,
         })

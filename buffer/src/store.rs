@@ -31,7 +31,7 @@ pub struct Stats {
 /// Inserts are never refused (a step an actor sent must not be lost): the wiring pauses
 /// reading its transport while [`can_insert`](Self::can_insert) says no. Sampling past the
 /// ratio is refused with [`ReplayError::RateLimited`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, PartialEq, Serialize, Deserialize)]
 pub struct ReplayBuffer {
     config: BufferConfig,
     replay: PrioritizedReplay,
@@ -174,11 +174,31 @@ impl ReplayBuffer {
         }
     }
 
-    /// Checks that a restored buffer is consistent with its own config.
-    pub(crate) fn check(&self) -> Result<(), String> {
+    /// Checks that a restored buffer is consistent with its own config, then builds its
+    /// sum trees.
+    pub(crate) fn check_and_index(&mut self) -> Result<(), String> {
         self.config
             .validate()
             .map_err(|e| e.in_table("buffer").to_string())?;
-        self.replay.check(&self.config)
+        self.replay.check(&self.config)?;
+        self.replay.rebuild_trees();
+        Ok(())
+    }
+
+    /// A consistent copy to write while this buffer goes on (a background snapshot): its
+    /// rings share their chunks with this buffer's, and its sum trees are left out (a
+    /// snapshot does not hold them), so it takes microseconds at any size.
+    pub fn copy_to_save(&self) -> ReplayCopy {
+        ReplayCopy(Self {
+            config: self.config.clone(),
+            replay: self.replay.copy_to_save(),
+            limiter: self.limiter.clone(),
+            assembler: self.assembler.clone(),
+            serving: self.serving.clone(),
+        })
     }
 }
+
+/// A buffer's copy taken to be saved ([`ReplayBuffer::copy_to_save`]); it can only be saved.
+#[derive(Debug)]
+pub struct ReplayCopy(pub(crate) ReplayBuffer);

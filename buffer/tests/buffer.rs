@@ -602,12 +602,44 @@ fn a_snapshot_round_trips_exactly() {
     let mut restored = ReplayBuffer::load(&path).unwrap();
     assert_eq!(restored, buffer);
     // And it behaves the same: the same draws from the same seed.
-    let mut original = buffer.clone();
+    let mut original = buffer;
     let (mut r1, mut r2) = (ChaCha8Rng::seed_from_u64(4), ChaCha8Rng::seed_from_u64(4));
     let a = original.sample(Primitive::Grasp, 2, &mut r1).unwrap();
     let b = restored.sample(Primitive::Grasp, 2, &mut r2).unwrap();
     assert_eq!(a, b);
     std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn a_copy_to_save_writes_the_buffer_as_it_was_when_copied() {
+    let mut buffer = busy_buffer();
+    let dir = tempfile::tempdir().unwrap();
+    let (then, copied) = (dir.path().join("then.snap"), dir.path().join("copy.snap"));
+    buffer.save(&then).unwrap();
+    let copy = buffer.copy_to_save();
+    // The buffer goes on while the copy waits to be written: new steps overwrite and add
+    // slots, and sampled items get new priorities.
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for episode in 10..14 {
+        for t in non_goal_episode(episode) {
+            buffer.add_step(t, Some(0.5)).unwrap();
+        }
+        buffer.end_episode(episode, Some(9)).unwrap();
+    }
+    let updates: Vec<(Key, f64)> = buffer
+        .sample(Primitive::Push, 8, &mut rng)
+        .unwrap()
+        .items
+        .iter()
+        .map(|i| (i.key, 7.0))
+        .collect();
+    buffer.update_priorities(&updates).unwrap();
+    copy.save(&copied).unwrap();
+    assert_eq!(
+        std::fs::read(&copied).unwrap(),
+        std::fs::read(&then).unwrap()
+    );
+    assert_ne!(ReplayBuffer::load(&copied).unwrap(), buffer);
 }
 
 #[test]

@@ -114,7 +114,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
     );
 
     // What a background snapshot holds the buffer up for: the copy it writes.
-    let (copy, time) = timed(|| buffer.clone());
+    let (copy, time) = timed(|| buffer.copy_to_save());
     drop(copy);
     put(
         format!("snapshot_hold_ms_{suffix}"),

@@ -8,7 +8,7 @@ use std::thread::JoinHandle;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use buffer::{ReplayBuffer, Serving};
+use buffer::{ReplayBuffer, ReplayCopy, Serving};
 use mcaplog::RunLog;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -373,7 +373,7 @@ impl BufferRole {
         self.report.snapshots += 1;
         self.sync_report();
         Snapshot {
-            replay: self.replay.clone(),
+            replay: self.replay.copy_to_save(),
             state: SavedState {
                 report: self.report.clone(),
                 open: self
@@ -389,7 +389,7 @@ impl BufferRole {
 
 /// A consistent copy of the buffer, to write.
 struct Snapshot {
-    replay: ReplayBuffer,
+    replay: ReplayCopy,
     state: SavedState,
 }
 
