@@ -2,7 +2,10 @@
 //! shared memory) goes on until its replay is full, then `--minutes` more, while every
 //! process's resident memory is sampled; each one's growth over the last three quarters of
 //! that time (15 of the default 20 minutes) is printed beside the bound a long run must keep
-//! (5%).
+//! (5%). Resident memory is split as the kernel counts it: the process's own (anonymous:
+//! its heap, where a leak shows), pages of files it maps (its program's code, paged in as
+//! new paths run) and shared memory it has touched (the topics' segments, bounded by their
+//! sizes).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -69,17 +72,17 @@ pub fn bench_soak(args: &SoakBenchArgs) -> Result<()> {
     let every = Duration::from_secs_f64(args.every_s);
     let fill_timeout = Duration::from_secs_f64(args.fill_timeout_min * 60.0);
     let window = Duration::from_secs_f64(args.minutes * 60.0);
-    let mut samples: Vec<(Duration, BTreeMap<String, f64>)> = Vec::new();
+    let mut samples: Vec<(Duration, BTreeMap<String, Memory>)> = Vec::new();
     let mut full_at: Option<Duration> = None;
     let outcome = loop {
         if let Some(status) = launcher.try_wait()? {
             break Err(anyhow::anyhow!("the run ended by itself ({status})"));
         }
         let now = start.elapsed();
-        let mut rss = BTreeMap::from([("launcher".to_string(), rss_mb(launcher.id()))]);
+        let mut rss = BTreeMap::from([("launcher".to_string(), Memory::of(launcher.id()))]);
         if let Ok(entries) = read_json::<Vec<ProcessEntry>>(&dir.processes()) {
             for entry in entries {
-                rss.insert(entry.role, rss_mb(entry.pid));
+                rss.insert(entry.role, Memory::of(entry.pid));
             }
         }
         samples.push((now, rss));
@@ -104,35 +107,74 @@ pub fn bench_soak(args: &SoakBenchArgs) -> Result<()> {
     print_figures(&Value::Object(figures), args.json)
 }
 
+/// A process's resident memory (MB), whole and by kind (0 once it is gone).
+#[derive(Clone, Copy)]
+struct Memory {
+    rss: f64,
+    anon: f64,
+    file: f64,
+    shmem: f64,
+}
+
+impl Memory {
+    fn of(pid: u32) -> Self {
+        let field = |name| status_mb(&pid.to_string(), name).unwrap_or(0.0);
+        Self {
+            rss: field("VmRSS:"),
+            anon: field("RssAnon:"),
+            file: field("RssFile:"),
+            shmem: field("RssShmem:"),
+        }
+    }
+}
+
 /// Each process's memory at the start of the measured window (the first sample from
-/// `from`) and at the end, its growth, and the largest growth beside the bound.
+/// `from`) and at the end, by kind, its growth, and the largest growth (resident, and
+/// anonymous) beside the bound.
 fn growth(
-    samples: &[(Duration, BTreeMap<String, f64>)],
+    samples: &[(Duration, BTreeMap<String, Memory>)],
     from: Duration,
     full: bool,
 ) -> Map<String, Value> {
-    let window: Vec<&BTreeMap<String, f64>> = samples
+    let window: Vec<&BTreeMap<String, Memory>> = samples
         .iter()
         .filter(|(at, _)| *at >= from)
         .map(|(_, rss)| rss)
         .collect();
     let mut figures = Map::new();
     figures.insert("replay_full".into(), full.into());
-    let mut most = f64::NEG_INFINITY;
+    let (mut most, mut most_anon) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
     if let (Some(first), Some(last)) = (window.first(), window.last()) {
-        for (process, &end) in last.iter() {
+        for (process, end) in last.iter() {
             // A process started during the window (a restarted role) has no start figure.
-            let Some(&begin) = first.get(process).filter(|&&mb| mb > 0.0) else {
+            let Some(begin) = first.get(process).filter(|m| m.rss > 0.0) else {
                 continue;
             };
-            let pct = (end - begin) / begin * 100.0;
-            most = most.max(pct);
-            figures.insert(format!("rss_mb_{process}_start"), round(begin));
-            figures.insert(format!("rss_mb_{process}_end"), round(end));
-            figures.insert(format!("rss_growth_pct_{process}"), round(pct));
+            let pct = |begin: f64, end: f64| (end - begin) / begin * 100.0;
+            most = most.max(pct(begin.rss, end.rss));
+            most_anon = most_anon.max(pct(begin.anon, end.anon));
+            figures.insert(
+                format!("rss_growth_pct_{process}"),
+                round(pct(begin.rss, end.rss)),
+            );
+            figures.insert(
+                format!("anon_growth_pct_{process}"),
+                round(pct(begin.anon, end.anon)),
+            );
+            let kinds = [
+                ("rss", begin.rss, end.rss),
+                ("anon", begin.anon, end.anon),
+                ("file", begin.file, end.file),
+                ("shmem", begin.shmem, end.shmem),
+            ];
+            for (kind, begin, end) in kinds {
+                figures.insert(format!("{kind}_mb_{process}_start"), round(begin));
+                figures.insert(format!("{kind}_mb_{process}_end"), round(end));
+            }
         }
     }
     figures.insert("rss_growth_pct_max".into(), round(most));
+    figures.insert("anon_growth_pct_max".into(), round(most_anon));
     figures.insert("rss_growth_pct_bound".into(), BOUND_PCT.into());
     figures
 }
@@ -164,9 +206,4 @@ fn config_with_capacity(config: &Path, capacity: Option<u64>, scratch: &Path) ->
     let copy = scratch.join("soak.toml");
     std::fs::write(&copy, toml::to_string(&table)?)?;
     Ok(copy)
-}
-
-/// The resident memory of process `pid` in MB (0 once it is gone).
-fn rss_mb(pid: u32) -> f64 {
-    status_mb(&pid.to_string(), "VmRSS:").unwrap_or(0.0)
 }
