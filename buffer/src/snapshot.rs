@@ -3,11 +3,11 @@
 //!
 //! Layout: 8 bytes of magic, the format version (u32), the payload's length (u64) and its
 //! xxh3 hash (u64), all little-endian, then the payload (postcard). The rings' sum trees are
-//! not written: they are their priorities raised to alpha, rebuilt when read. A ring writes each packed
-//! observation once, as it lies in memory (compressed, with its own hash), and its items name
-//! theirs by index, so relabelled copies share it again when read. The hashes turn a flipped
-//! byte into a clear error instead of a plausible but wrong buffer: the observation's own
-//! names the damaged record, the payload's the rest.
+//! not written: they are their priorities raised to alpha, rebuilt when read. A ring writes
+//! each packed observation once, as it lies in memory (compressed, with its own hash), and its
+//! items name theirs by index, so relabelled copies share it again when read. The hashes turn
+//! a flipped byte into a clear error instead of a plausible but wrong buffer: the
+//! observation's own names the damaged record, the payload's the rest.
 
 use std::collections::HashMap;
 use std::fs::{self, File};

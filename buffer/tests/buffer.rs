@@ -578,18 +578,23 @@ fn busy_buffer() -> ReplayBuffer {
         }
         buffer.end_episode(episode, Some(9)).unwrap();
     }
-    let updates: Vec<(Key, f64)> = buffer
-        .sample(Primitive::Push, 4, &mut rng)
-        .unwrap()
-        .items
-        .iter()
-        .map(|i| (i.key, 3.0))
-        .collect();
-    buffer.update_priorities(&updates).unwrap();
+    reprioritise_sampled(&mut buffer, 4, 3.0, &mut rng);
     buffer
         .add_step(non_goal_episode(3).remove(0), None)
         .unwrap();
     buffer
+}
+
+/// Samples `n` pushes and gives each the priority `priority`, as the learner does.
+fn reprioritise_sampled(buffer: &mut ReplayBuffer, n: usize, priority: f64, rng: &mut ChaCha8Rng) {
+    let updates: Vec<(Key, f64)> = buffer
+        .sample(Primitive::Push, n, rng)
+        .unwrap()
+        .items
+        .iter()
+        .map(|i| (i.key, priority))
+        .collect();
+    buffer.update_priorities(&updates).unwrap();
 }
 
 #[test]
@@ -626,14 +631,7 @@ fn a_copy_to_save_writes_the_buffer_as_it_was_when_copied() {
         }
         buffer.end_episode(episode, Some(9)).unwrap();
     }
-    let updates: Vec<(Key, f64)> = buffer
-        .sample(Primitive::Push, 8, &mut rng)
-        .unwrap()
-        .items
-        .iter()
-        .map(|i| (i.key, 7.0))
-        .collect();
-    buffer.update_priorities(&updates).unwrap();
+    reprioritise_sampled(&mut buffer, 8, 7.0, &mut rng);
     copy.save(&copied).unwrap();
     assert_eq!(
         std::fs::read(&copied).unwrap(),
