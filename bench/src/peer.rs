@@ -105,6 +105,9 @@ inputs = [helper.make_tensor_value_info(plane, TensorProto.FLOAT, [n, c, p, p])
 results = [helper.make_tensor_value_info(o, TensorProto.FLOAT, None) for o in outputs]
 graph = helper.make_graph(nodes, "qnets", inputs, results, initialisers)
 model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+# make_model stamps the installed onnx's newest IR version, which an older onnxruntime refuses
+# ("Unsupported model IR version"); opset 17 came with IR version 8.
+model.ir_version = 8
 
 options = ort.SessionOptions()
 options.intra_op_num_threads = threads

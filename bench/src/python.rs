@@ -34,7 +34,11 @@ pub fn script_figures(python: &Path, script: &str, args: &[String]) -> Result<Ma
         bail!(
             "{} failed: {}",
             python.display(),
-            stderr.lines().last().unwrap_or("no message")
+            stderr
+                .lines()
+                .rev()
+                .find(|line| !line.trim().is_empty())
+                .unwrap_or("no message")
         );
     }
     let stdout = String::from_utf8_lossy(&output.stdout);
