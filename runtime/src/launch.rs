@@ -213,7 +213,7 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
 type Shared = Arc<dyn Transport + Send + Sync>;
 
 /// How the roles meet: threads over channels, or processes over the run's shared memory
-/// (stale services of an earlier run of this id removed first).
+/// (what killed processes of earlier launches of this run left removed first).
 fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)> {
     if threads {
         let transport = ChannelTransport::new();
@@ -222,8 +222,12 @@ fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)>
         };
         return Ok((wiring, Arc::new(transport)));
     }
-    let namespace = shm_namespace(run_id, dir)?;
-    wire::ShmTransport::remove_stale(&namespace)?;
+    let run_space = shm_namespace(run_id, dir)?;
+    wire::ShmTransport::remove_stale(&run_space)?;
+    // Each launch meets its roles in services of its own: a launch killed while it created
+    // one leaves it half made, and iceoryx2 refuses to open such a service ("hangs in
+    // creation"), so a resumed run must not meet it.
+    let namespace = format!("{run_space}-{:x}", std::process::id());
     let transport = wire::ShmTransport::new(&namespace, "launcher")?;
     Ok((Wiring::Processes { namespace }, Arc::new(transport)))
 }
@@ -418,10 +422,12 @@ pub(crate) fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
     let mut hasher = fnv::FnvHasher::default();
     hasher.write(dir.as_os_str().as_encoded_bytes());
     let hash = format!("{:016x}", hasher.finish());
-    // Within the transport's limit on run ids, the hash and its dash kept whole.
+    // Within the transport's limit on run ids, the hash and its dash kept whole, with room
+    // for a launch's suffix (`-` and a process id in hex, see `wiring`).
+    const LAUNCH_SUFFIX: usize = 1 + 8;
     let id: String = run_id
         .chars()
-        .take(wire::MAX_RUN_ID - hash.len() - 1)
+        .take(wire::MAX_RUN_ID - hash.len() - 1 - LAUNCH_SUFFIX)
         .collect();
     Ok(format!("{id}-{hash}"))
 }

@@ -161,7 +161,7 @@ pub struct RoleArgs {
     /// The run directory (holds the resolved config.toml).
     #[arg(long)]
     pub run_dir: PathBuf,
-    /// The namespace of the run's shared-memory services (the launcher's `shm_namespace`).
+    /// The namespace of the run's shared-memory services (this launch's, from the launcher).
     #[arg(long)]
     pub shm_namespace: String,
     #[arg(long)]

@@ -112,11 +112,12 @@ impl ShmTransport {
 
     /// Removes the shared memory that dead processes of run `run_id` left behind (killed
     /// processes cannot remove their own), and says which of the run's processes are alive.
-    /// A launcher calls it before it starts or resumes a run.
+    /// The run's processes are those under `run_id` and under any id that extends it with
+    /// `-<suffix>` (a launcher gives each launch of a run its own). A launcher calls it
+    /// before it starts or resumes a run.
     pub fn remove_stale(run_id: &str) -> Result<StaleCleanup, TransportError> {
         check_run_id(run_id)?;
-        let prefix = format!("{PREFIX}/{run_id}/");
-        let of_run = |name: Option<&str>| name.is_some_and(|n| n.starts_with(&prefix));
+        let of_run = |name: Option<&str>| name.is_some_and(|name| is_of_run(name, run_id));
         let mut dead = Vec::new();
         let mut report = StaleCleanup::default();
         Node::<ipc::Service>::list(&config()?, |state| {
@@ -178,6 +179,15 @@ impl ShmTransport {
                 ),
             })
     }
+}
+
+/// Whether node `name` is a process of run `run_id`: named under the run's id, or under an
+/// id that extends it with `-<suffix>` (one launch of the run).
+fn is_of_run(name: &str, run_id: &str) -> bool {
+    name.strip_prefix(PREFIX)
+        .and_then(|rest| rest.strip_prefix('/'))
+        .and_then(|rest| rest.strip_prefix(run_id))
+        .is_some_and(|rest| rest.starts_with('/') || rest.starts_with('-'))
 }
 
 /// Subscribers a topic admits at once. iceoryx2 sizes each publisher's shared memory for the
@@ -410,6 +420,25 @@ impl Subscriber for ShmSubscriber {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_runs_processes_are_those_of_its_id_and_of_its_launches() {
+        let run = "stage1-00ff";
+        for ours in [
+            "pushgrasp/stage1-00ff/launcher",
+            "pushgrasp/stage1-00ff-1a2b/actor-0-0",
+        ] {
+            assert!(is_of_run(ours, run), "{ours}");
+        }
+        for theirs in [
+            "pushgrasp/stage1-00ffe/launcher",
+            "pushgrasp/stage1-00f/launcher",
+            "pushgrasp/stage1-00ff",
+            "other/stage1-00ff/launcher",
+        ] {
+            assert!(!is_of_run(theirs, run), "{theirs}");
+        }
+    }
 
     #[test]
     fn run_ids_are_checked() {
