@@ -224,10 +224,7 @@ fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)>
     }
     let run_space = shm_namespace(run_id, dir)?;
     wire::ShmTransport::remove_stale(&run_space)?;
-    // Each launch meets its roles in services of its own: a launch killed while it created
-    // one leaves it half made, and iceoryx2 refuses to open such a service ("hangs in
-    // creation"), so a resumed run must not meet it.
-    let namespace = format!("{run_space}-{:x}", std::process::id());
+    let namespace = launch_namespace(&run_space);
     let transport = wire::ShmTransport::new(&namespace, "launcher")?;
     Ok((Wiring::Processes { namespace }, Arc::new(transport)))
 }
@@ -423,11 +420,21 @@ pub(crate) fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
     hasher.write(dir.as_os_str().as_encoded_bytes());
     let hash = format!("{:016x}", hasher.finish());
     // Within the transport's limit on run ids, the hash and its dash kept whole, with room
-    // for a launch's suffix (`-` and a process id in hex, see `wiring`).
-    const LAUNCH_SUFFIX: usize = 1 + 8;
+    // for a launch's suffix.
     let id: String = run_id
         .chars()
         .take(wire::MAX_RUN_ID - hash.len() - 1 - LAUNCH_SUFFIX)
         .collect();
     Ok(format!("{id}-{hash}"))
+}
+
+/// Room [`launch_namespace`] takes after a run's namespace: `-` and a `u32` in hex.
+const LAUNCH_SUFFIX: usize = 1 + 8;
+
+/// The namespace of one launch of the run whose namespace is `run_space`: this launcher's
+/// process id after it. Each launch meets its roles in services of its own: a launch killed
+/// while it created one leaves it half made, and iceoryx2 refuses to open such a service
+/// ("hangs in creation"), so a resumed run must not meet it.
+fn launch_namespace(run_space: &str) -> String {
+    format!("{run_space}-{:x}", std::process::id())
 }
