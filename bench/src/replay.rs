@@ -18,9 +18,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use buffer::{BufferConfig, PrioritizedReplay, StoredTransition};
+use buffer::{BufferConfig, PrioritizedReplay};
 use clap::Args;
-use experience::Transition;
+use experience::{StoredTransition, Transition};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{Map, Value};
@@ -213,7 +213,7 @@ fn transition(grid: PixelGrid, i: u64) -> StoredTransition {
     let pixels = obs.ids.len();
     obs.ids[i as usize % pixels] = 1;
     obs.height[i as usize % pixels] = 0.025;
-    buffer::observation::store(Transition {
+    experience::observation::store(Transition {
         episode: i / 8,
         step: (i % 8) as u32,
         goal: 1,

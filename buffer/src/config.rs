@@ -5,7 +5,8 @@ use std::fmt;
 use serde::de::{self, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use sim::{ConfigError, above};
+use experience::{PackedObservation, StoredTransition};
+use sim::{Camera, ConfigError, SimConfig, SimError, Tabletop, above};
 
 use crate::rate_limit::RateLimiter;
 
@@ -179,4 +180,14 @@ impl BufferConfig {
             self.error_buffer,
         )
     }
+}
+
+/// About the bytes one stored step takes: a settled scene of `objects` blocks at the
+/// config's resolution, packed, and a slot's bookkeeping (the transition, its generation,
+/// priority and share of the sum tree, the shared allocation's counts).
+pub fn bytes_per_step(config: &SimConfig, objects: usize) -> Result<usize, SimError> {
+    const SLOT_BYTES: usize = std::mem::size_of::<StoredTransition>() + 8 + 8 + 10 + 16;
+    let (tabletop, _) = Tabletop::random(config, objects, 0)?;
+    let obs = Camera::new(tabletop.grid()).render(&tabletop);
+    Ok(PackedObservation::pack(&obs).stored_bytes() + SLOT_BYTES)
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use experience::Key;
 use sim::{ObjectId, Primitive};
 
-use crate::observation::CorruptObservation;
+use experience::CorruptObservation;
 
 /// A request the replay cannot serve.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -28,7 +28,7 @@ use sim::{ObjectId, Primitive};
 use experience::Transition;
 
 use crate::error::AssembleError;
-use crate::observation::{PackedObservation, StoredTransition};
+use experience::{PackedObservation, StoredTransition};
 
 /// A step waiting for its episode to end, with the actor's initial priority (|TD error|).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -11,8 +11,8 @@ use sim::{ConfigError, Primitive};
 use crate::chunks::SharedChunks;
 use crate::config::BufferConfig;
 use crate::error::ReplayError;
-use crate::observation::StoredTransition;
 use crate::sum_tree::SumTree;
+use experience::StoredTransition;
 
 /// A batch of one primitive, drawn with replacement.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,25 +25,36 @@ pub struct Batch<'a> {
 }
 
 impl Batch<'_> {
-    /// The items with their observations decompressed (in parallel), as the learner needs
-    /// them; a damaged observation is an error naming its item.
-    pub fn unpack(&self) -> Result<Vec<BatchItem>, ReplayError> {
+    /// The items owned, their observations still packed (shared with the rings), as a
+    /// message carries them to the learner.
+    pub fn to_owned_items(&self) -> Vec<BatchItem<StoredTransition>> {
         self.items
-            .par_iter()
-            .map(|item| {
-                let obs = item
-                    .transition
-                    .obs
-                    .unpack()
-                    .map_err(|why| ReplayError::Corrupt { key: item.key, why })?;
-                Ok(BatchItem {
-                    key: item.key,
-                    weight: item.weight,
-                    transition: item.transition.clone().with_obs(obs),
-                })
+            .iter()
+            .map(|item| BatchItem {
+                key: item.key,
+                weight: item.weight,
+                transition: item.transition.clone(),
             })
             .collect()
     }
+
+    /// The items with their observations decompressed (in parallel), as the learner trains
+    /// on them; a damaged observation is an error naming its item.
+    pub fn unpack(&self) -> Result<Vec<BatchItem>, ReplayError> {
+        unpack(&self.to_owned_items())
+    }
+}
+
+/// `items` with their observations decompressed, in parallel; a damaged observation is an
+/// error naming its item.
+pub fn unpack(items: &[BatchItem<StoredTransition>]) -> Result<Vec<BatchItem>, ReplayError> {
+    items
+        .par_iter()
+        .map(|item| {
+            item.unpack()
+                .map_err(|why| ReplayError::Corrupt { key: item.key, why })
+        })
+        .collect()
 }
 
 /// Fixed-capacity storage of one primitive: a ring of transitions, their generations and

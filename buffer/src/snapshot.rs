@@ -22,9 +22,9 @@ use xxhash_rust::xxh3::Xxh3;
 
 use crate::chunks::SharedChunks;
 use crate::error::{SnapshotError, SnapshotErrorKind};
-use crate::observation::PackedObservation;
 use crate::replay::Ring;
 use crate::store::{ReplayBuffer, ReplayCopy};
+use experience::PackedObservation;
 
 const MAGIC: &[u8; 8] = b"PGREPLAY";
 /// Bump when the payload's layout changes.

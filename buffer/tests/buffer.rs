@@ -3,12 +3,12 @@
 
 use std::path::PathBuf;
 
-use buffer::observation::store;
 use buffer::{
     AssembleError, BufferConfig, EpisodeAssembler, PrioritizedReplay, ReplayBuffer, ReplayError,
-    Serving, SnapshotErrorKind, StoredTransition,
+    Serving, SnapshotErrorKind,
 };
-use experience::{Key, Transition};
+use experience::observation::store;
+use experience::{BatchItem, Key, StoredTransition, Transition};
 use policy::PushReward;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -732,4 +732,54 @@ fn a_damaged_observation_in_a_snapshot_is_named() {
         err.contains("Push ring's observation at slot 1 (episode 0, step 1)"),
         "{err}"
     );
+}
+
+#[test]
+fn a_batch_travels_packed_and_a_damaged_item_is_named() {
+    let config = BufferConfig {
+        min_size_to_sample: 1,
+        ..config(16)
+    };
+    let mut buffer = ReplayBuffer::new(config, serving_both()).unwrap();
+    for t in non_goal_episode(0) {
+        buffer.add_step(t, None).unwrap();
+    }
+    buffer.end_episode(0, Some(9)).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let batch = buffer.sample(Primitive::Push, 4, &mut rng).unwrap();
+    let items = batch.to_owned_items();
+    for (owned, lent) in items.iter().zip(&batch.items) {
+        assert!(
+            owned.transition.obs.shares(&lent.transition.obs),
+            "no bytes copied"
+        );
+    }
+    // Through a message's encoding, as the learner receives it.
+    let mut bytes = postcard::to_stdvec(&items).unwrap();
+    let received: Vec<BatchItem<StoredTransition>> = postcard::from_bytes(&bytes).unwrap();
+    let unpacked_items = buffer::unpack(&received).unwrap();
+    let episode = non_goal_episode(0);
+    for item in &unpacked_items {
+        assert_eq!(
+            item.transition.obs,
+            episode[item.transition.step as usize].obs
+        );
+    }
+    assert_eq!(unpacked_items, batch.unpack().unwrap());
+
+    // A byte of the first item's frame flipped on the way.
+    let record = items[0].transition.obs.compressed();
+    let at = bytes
+        .windows(record.len())
+        .position(|w| w == record)
+        .expect("the message holds the compressed bytes as they are");
+    bytes[at + record.len() / 2] ^= 0x01;
+    let received: Vec<BatchItem<StoredTransition>> = postcard::from_bytes(&bytes).unwrap();
+    match buffer::unpack(&received) {
+        Err(ReplayError::Corrupt { key, why }) => {
+            assert_eq!(key, items[0].key);
+            assert_eq!(why, experience::CorruptObservation::Hash);
+        }
+        other => panic!("a damaged item was unpacked: {other:?}"),
+    }
 }

@@ -3,6 +3,7 @@
 use serde::{Deserialize, Serialize};
 use sim::Primitive;
 
+use crate::observation::{CorruptObservation, StoredTransition};
 use crate::transition::Transition;
 
 /// A stable name for a stored item: priority updates carry it back from the learner.
@@ -16,11 +17,25 @@ pub struct Key {
 }
 
 /// One sampled transition with what the learner needs to weigh it and update its priority:
-/// the replay lends its stored transitions, a message carries them owned and unpacked.
+/// the replay lends its stored transitions, a message carries them owned and still packed.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BatchItem<T = Transition> {
     pub key: Key,
     /// The importance-sampling weight (N P(i))^-beta divided by the batch's largest.
     pub weight: f32,
     pub transition: T,
+}
+
+impl BatchItem<StoredTransition> {
+    /// The item with its observation decompressed, as the learner trains on it.
+    pub fn unpack(&self) -> Result<BatchItem, CorruptObservation> {
+        Ok(BatchItem {
+            key: self.key,
+            weight: self.weight,
+            transition: self
+                .transition
+                .clone()
+                .with_obs(self.transition.obs.unpack()?),
+        })
+    }
 }

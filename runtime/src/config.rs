@@ -282,7 +282,7 @@ impl RunConfig {
     /// the bytes a stored step of this run's scenes takes, and a replay that cannot fit the
     /// memory this machine has available is refused, with the figure it would need.
     pub fn size_buffer(&mut self) -> Result<()> {
-        let step = buffer::observation::bytes_per_step(&self.sim, self.objects)?;
+        let step = buffer::bytes_per_step(&self.sim, self.objects)?;
         let asked = self.buffer.capacity;
         self.buffer.resolve(step);
         let slots = self.buffer.slots()?;

@@ -97,7 +97,7 @@ fn the_replay_capacity_is_transitions_or_bytes_and_must_fit_the_machine() {
     let mut config = stage1_with("buffer.capacity", "\"64 MiB\"").unwrap();
     assert_eq!(config.buffer.capacity, Capacity::Bytes(64 << 20));
     config.size_buffer().unwrap();
-    let step = buffer::observation::bytes_per_step(&config.sim, config.objects).unwrap();
+    let step = buffer::bytes_per_step(&config.sim, config.objects).unwrap();
     assert!(
         (1_000..20_000).contains(&step),
         "{step} bytes a stored step at 112"

@@ -1,7 +1,7 @@
 //! The messages of a run, and who sends each. Steps flow actor -> buffer -> learner; only
 //! priorities, weights and control flow back.
 
-use experience::{BatchItem, Key, Transition};
+use experience::{BatchItem, Key, StoredTransition, Transition};
 use serde::{Deserialize, Serialize};
 use sim::{ObjectId, Primitive};
 
@@ -118,11 +118,12 @@ pub struct SampleRequest {
     pub size: u32,
 }
 
-/// The buffer's answer to a [`SampleRequest`] (buffer -> learner).
+/// The buffer's answer to a [`SampleRequest`] (buffer -> learner): the items as the buffer
+/// stores them, observations packed; the learner unpacks them.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BatchMessage {
     pub request: u64,
-    pub items: Vec<BatchItem>,
+    pub items: Vec<BatchItem<StoredTransition>>,
 }
 
 /// New priorities for sampled items (learner -> buffer).

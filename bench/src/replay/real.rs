@@ -4,23 +4,27 @@
 //! Each resolution runs in a process of its own, so that its peak resident memory is the
 //! buffer's alone: the replay is filled through the buffer's own insert path (episodes of
 //! grasps assembled, their observations compressed in parallel, stored), then learner steps
-//! at the learner's batch size are timed (sample, decompress the batch, update its priorities)
-//! beside the same sampling with each item's raw transition cloned (how the buffer served
-//! batches when it kept observations raw); then the copy a background snapshot takes is
-//! timed, a snapshot is written, the buffer dropped, and the snapshot read back. Before that, the codecs the buffer could use are compared on the
-//! same observations' planes.
+//! at the learner's batch size are timed, the whole way a batch goes (sample, the message
+//! encoded and decoded, its observations decompressed, the priorities updated), beside the
+//! same with each item's raw transition cloned into the message (how batches were served
+//! when the buffer kept observations raw); then the copy a background snapshot takes is
+//! timed, a snapshot is written, the buffer dropped, and the snapshot read back. Before that,
+//! the codecs the buffer could use are compared on the same observations' planes.
 
 use std::hint::black_box;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use buffer::observation::planes;
 use buffer::{BufferConfig, Capacity, ReplayBuffer, Serving};
-use experience::{Key, Transition};
+use experience::observation::planes;
+use experience::{BatchItem, Key, Transition};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 use serde_json::{Map, Value};
 use sim::{Action, Heightmaps, Primitive, SimConfig};
+use wire::BatchMessage;
 
 use crate::status_mb;
 use crate::{median, rendered_scene, timed};
@@ -55,7 +59,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
     let raw = planes(&scenes[0]).len();
     put(format!("raw_bytes_per_step_{side}"), raw as f64);
     let unpack_us = scenes.iter().map(|scene| {
-        let packed = buffer::PackedObservation::pack(scene);
+        let packed = experience::PackedObservation::pack(scene);
         timed(|| packed.unpack()).1.as_secs_f64() * 1e6
     });
     put(format!("unpack_us_{side}"), median(unpack_us.collect()));
@@ -106,12 +110,9 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         put(format!("rss_mb_{suffix}"), rss);
     }
 
-    let [packed, raw_clone] = learner_steps(&mut buffer, &scenes)?;
+    let [packed, raw] = learner_steps(&mut buffer, &scenes)?;
     put(format!("learner_steps_per_s_{suffix}"), packed);
-    put(
-        format!("learner_steps_per_s_raw_clone_2p{exponent}_{side}"),
-        raw_clone,
-    );
+    put(format!("learner_steps_per_s_raw_2p{exponent}_{side}"), raw);
 
     // What a background snapshot holds the buffer up for: the copy it writes.
     let (copy, time) = timed(|| buffer.copy_to_save());
@@ -178,36 +179,53 @@ fn stored_bytes(buffer: &ReplayBuffer, keys: &[Key]) -> f64 {
     total as f64 / keys.len() as f64
 }
 
-/// Learner steps/s, medians: [sample + decompress + update, sample + clone raw + update].
+/// Learner steps/s, medians, a batch's whole way: [packed (sample, message encoded and
+/// decoded, unpacked, priorities updated), raw (sample, raw clones in the message encoded and
+/// decoded, priorities updated)].
 fn learner_steps(buffer: &mut ReplayBuffer, scenes: &[Heightmaps]) -> Result<[f64; 2]> {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let mut timings = [Vec::new(), Vec::new()];
+    let mut bytes = Vec::new();
     for i in 0..2 * LEARNER_STEPS {
-        let unpack = i % 2 == 0;
+        let packed = i % 2 == 0;
         let start = Instant::now();
         let batch = buffer.sample(Primitive::Grasp, LEARNER_BATCH, &mut rng)?;
         let keys: Vec<Key> = batch.items.iter().map(|item| item.key).collect();
-        if unpack {
-            black_box(batch.unpack()?);
+        let items = batch.to_owned_items();
+        if packed {
+            let message = send_and_receive(BatchMessage { request: 0, items }, &mut bytes)?;
+            black_box(buffer::unpack(&message.items)?);
         } else {
-            let raw: Vec<Transition> = batch
-                .items
-                .iter()
-                .map(|item| {
-                    let obs = scenes[item.key.slot as usize % scenes.len()].clone();
-                    item.transition.clone().with_obs(obs)
+            let raw: Vec<BatchItem> = items
+                .into_iter()
+                .map(|item| BatchItem {
+                    key: item.key,
+                    weight: item.weight,
+                    transition: item
+                        .transition
+                        .with_obs(scenes[item.key.slot as usize % scenes.len()].clone()),
                 })
                 .collect();
-            black_box(raw);
+            black_box(send_and_receive(raw, &mut bytes)?);
         }
         let updates: Vec<(Key, f64)> = keys
             .into_iter()
             .map(|key| (key, 2.0 * rng.random::<f64>()))
             .collect();
         buffer.update_priorities(&updates)?;
-        timings[usize::from(!unpack)].push(start.elapsed().as_secs_f64());
+        timings[usize::from(!packed)].push(start.elapsed().as_secs_f64());
     }
     Ok(timings.map(|t| 1.0 / median(t)))
+}
+
+/// `message` encoded into `bytes` as the buffer's outbox does and decoded back as the
+/// learner's inbox does.
+fn send_and_receive<M: Serialize + DeserializeOwned>(message: M, bytes: &mut Vec<u8>) -> Result<M> {
+    bytes.clear();
+    let encoded = postcard::to_extend(&message, std::mem::take(bytes))?;
+    let back = postcard::from_bytes(&encoded)?;
+    *bytes = encoded;
+    Ok(back)
 }
 
 /// A codec the buffer could store observations with.

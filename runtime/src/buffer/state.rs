@@ -293,7 +293,7 @@ impl BufferRole {
             Vec::new()
         } else {
             let batch = self.replay.sample(request.primitive, size, &mut self.rng)?;
-            batch.unpack()?
+            batch.to_owned_items()
         };
         self.requests.pop_front();
         batches.send(&Message::Batch(BatchMessage {

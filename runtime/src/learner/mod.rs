@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use experience::Transition;
 use learner::checkpoint::config_hash;
 use learner::{Checkpoint, Manifest, Sample, SavedNets, Trainer};
@@ -327,8 +327,8 @@ impl<'a> LearnerRole<'a> {
             self.trainer.set_trained(net);
         }
         let gamma = self.config.learning.gamma;
-        let samples: Vec<Sample> = batch
-            .items
+        let samples: Vec<Sample> = buffer::unpack(&batch.items)
+            .context("a batch from the buffer")?
             .iter()
             .map(|item| sample(&item.transition, item.weight, gamma))
             .collect();

@@ -1,5 +1,6 @@
-//! Observations as the buffer keeps them: compressed, and shared by the relabelled copies of
-//! a step.
+//! Observations as the buffer keeps them and the learner receives them: compressed, and
+//! shared by the relabelled copies of a step. Batches travel packed (a twentieth of the
+//! bytes) and are unpacked by the learner, which needs the heightmaps.
 //!
 //! A step's heightmaps are mostly flat and piecewise constant (blocks on a table), so they
 //! compress well once laid out as planes: the red, green and blue bytes, the height's four
@@ -18,11 +19,11 @@ use std::cell::RefCell;
 use std::sync::Arc;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
-use sim::{Camera, Heightmaps, PixelGrid, SimConfig, SimError, Tabletop};
+use sim::{Heightmaps, PixelGrid};
 use thiserror::Error;
 use zstd::bulk::{Compressor, Decompressor};
 
-use experience::Transition;
+use crate::transition::Transition;
 
 /// zstd's level: 1 packs a 112² step in about 0.1 ms to within a few percent of the bytes
 /// of level 3, which takes a third longer; decoding costs the same at every level.
@@ -164,19 +165,14 @@ impl PackedObservation {
     }
 
     /// The address of the stored bytes: the same for every holder of one observation.
-    pub(crate) fn address(&self) -> *const u8 {
+    pub fn address(&self) -> *const u8 {
         self.0.as_ptr()
     }
-}
 
-/// About the bytes one stored step takes: a settled scene of `objects` blocks at the
-/// config's resolution, packed, and a slot's bookkeeping (the transition, its generation,
-/// priority and share of the sum tree, the shared allocation's counts).
-pub fn bytes_per_step(config: &SimConfig, objects: usize) -> Result<usize, SimError> {
-    const SLOT_BYTES: usize = std::mem::size_of::<StoredTransition>() + 8 + 8 + 10 + 16;
-    let (tabletop, _) = Tabletop::random(config, objects, 0)?;
-    let obs = Camera::new(tabletop.grid()).render(&tabletop);
-    Ok(PackedObservation::pack(&obs).0.len() + SLOT_BYTES)
+    /// The bytes one packed observation takes (header and frame).
+    pub fn stored_bytes(&self) -> usize {
+        self.0.len()
+    }
 }
 
 /// `transition` as the rings hold it: its observation packed, shared by nothing yet.
