@@ -184,6 +184,31 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let best = case["net_best"].as_f64().unwrap();
     assert!(best == 0.0 || best == 1.0, "{grasps}");
 
+    // The grasp-ranking benchmark on one packed cluster, one try per grasp.
+    let ranking: Value = serde_json::from_str(&pushgrasp_ok(&[
+        "bench",
+        "grasp-ranking",
+        "--checkpoint",
+        checkpoint,
+        "--scenes",
+        "1",
+        "--jitters",
+        "1",
+        "--json",
+    ]))
+    .unwrap();
+    assert_eq!(ranking["scenes"], 1, "{ranking}");
+    assert!(ranking["auc"].is_null() || (0.0..=1.0).contains(&ranking["auc"].as_f64().unwrap()));
+    let top1 = ranking["top1_success"].as_f64().unwrap();
+    assert!(top1 == 0.0 || top1 == 1.0, "{ranking}");
+    // The top five grasps, one try each: a count of five.
+    let top5 = ranking["top_k_success"].as_f64().unwrap() * 5.0;
+    assert!(
+        (top5 - top5.round()).abs() < 1e-9 && (0.0..=5.0).contains(&top5),
+        "{ranking}"
+    );
+    assert!((0.0..=1.0).contains(&ranking["random_success"].as_f64().unwrap()));
+
     // Nothing to test, and a checkpoint that is not one, are refused with the reason.
     let none = pushgrasp_fails(&["eval", "--checkpoint", checkpoint]);
     assert!(none.contains("nothing to test"), "{none}");

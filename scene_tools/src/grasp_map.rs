@@ -116,9 +116,28 @@ struct NetScore {
     net_auc: Option<f64>,
     /// Share of tries of the grasp with the highest Q that picked the goal.
     net_best: f64,
+    /// The same over the [`TOP_K`] grasps with the highest Q.
+    net_top_k: f64,
 }
 
+/// How many of the grasps the net scores highest `net_top_k` tries.
+const TOP_K: usize = 5;
+
 pub fn run(args: &GraspsArgs) -> Result<()> {
+    let cases = measure(args)?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({ "stride": args.stride, "jitters": args.jitters, "cases": cases })
+        );
+    } else {
+        print_table(&cases, args);
+    }
+    Ok(())
+}
+
+/// Every case's grasps of its goal, tried.
+fn measure(args: &GraspsArgs) -> Result<Vec<CaseGrasps>> {
     let (sim, agent) = match &args.checkpoint {
         Some(checkpoint) => {
             let (config, agent, _) = load_agent(
@@ -228,15 +247,65 @@ pub fn run(args: &GraspsArgs) -> Result<()> {
             net,
         });
     }
-    if args.json {
-        println!(
-            "{}",
-            serde_json::json!({ "stride": args.stride, "jitters": args.jitters, "cases": cases })
-        );
-    } else {
-        print_table(&cases, args);
-    }
-    Ok(())
+    Ok(cases)
+}
+
+/// `pushgrasp bench grasp-ranking`: how well a grasp net ranks the direct grasps of a goal
+/// in packed clusters it never trained on (random scenes' seeds start at 2^32, where no
+/// actor's scenes are drawn).
+#[derive(Debug, Serialize)]
+pub struct GraspRanking {
+    pub scenes: usize,
+    /// Mean over the scenes where some grasps always and some never pick the goal of the
+    /// chance that the net's Q ranks one of the first above one of the second.
+    pub auc: Option<f64>,
+    /// Shares of tries that picked the goal: the grasp the net scores highest, its
+    /// [`TOP_K`] highest, and all candidates (a grasp at a random pixel and angle).
+    pub top1_success: f64,
+    pub top_k_success: f64,
+    pub top_k: usize,
+    pub random_success: f64,
+    /// Each scene's AUC, in order.
+    pub scene_aucs: Vec<Option<f64>>,
+}
+
+/// The ranking of `checkpoint`'s grasp net on `scenes` packed clusters (two lines of four
+/// touching blocks in five, the goal one of the four) drawn from `seed` beyond the seeds
+/// training draws from; every other pixel of the goal, 8 jaw angles, `jitters` copies each.
+pub fn ranking(
+    checkpoint: PathBuf,
+    config: Option<PathBuf>,
+    scenes: usize,
+    jitters: usize,
+    seed: u64,
+) -> Result<GraspRanking> {
+    let args = GraspsArgs {
+        arrangements: Vec::new(),
+        random: Some(scenes),
+        objects: 5,
+        rows: RowArgs { row: 4, lines: 2 },
+        pixel_size: 0.004,
+        checkpoint: Some(checkpoint),
+        config,
+        stride: 2,
+        jitters,
+        seed,
+        json: true,
+    };
+    let cases = measure(&args)?;
+    let nets: Vec<&NetScore> = cases.iter().filter_map(|c| c.net.as_ref()).collect();
+    let mean = |values: Vec<f64>| {
+        (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+    };
+    Ok(GraspRanking {
+        scenes: cases.len(),
+        auc: mean(nets.iter().filter_map(|n| n.net_auc).collect()),
+        top1_success: mean(nets.iter().map(|n| n.net_best).collect()).unwrap_or(0.0),
+        top_k_success: mean(nets.iter().map(|n| n.net_top_k).collect()).unwrap_or(0.0),
+        top_k: TOP_K,
+        random_success: mean(cases.iter().map(|c| c.success).collect()).unwrap_or(0.0),
+        scene_aucs: nets.iter().map(|n| n.net_auc).collect(),
+    })
 }
 
 /// Grasps at every `stride`-th pixel of the goal's mask in `maps`, at each of the distinct
@@ -286,12 +355,15 @@ fn score_net(
             .map(|(q, _)| *q)
             .collect()
     };
-    let best = (0..q.len())
-        .max_by(|&i, &j| q[i].total_cmp(&q[j]))
-        .expect("candidates");
+    let mut ranked: Vec<usize> = (0..q.len()).collect();
+    ranked.sort_by(|&i, &j| q[j].total_cmp(&q[i]));
+    let success = |grasps: &[usize]| {
+        grasps.iter().map(|&i| picks[i]).sum::<usize>() as f64 / (grasps.len() * jitters) as f64
+    };
     Ok(NetScore {
         net_auc: auc(&with(jitters), &with(0)),
-        net_best: picks[best] as f64 / jitters as f64,
+        net_best: success(&ranked[..1]),
+        net_top_k: success(&ranked[..TOP_K.min(ranked.len())]),
     })
 }
 
@@ -339,21 +411,28 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
                shares: [f64; 3],
                inside: Vec<Option<f64>>,
                scripted: f64,
-               net: Option<[String; 2]>| {
+               net: Option<[String; 3]>| {
         let [always, never, success] = shares.map(percent);
         let inside: String = inside
             .into_iter()
             .map(|s| format!(" {:>8}", s.map_or("-".into(), percent)))
             .collect();
         let scripted = percent(scripted);
-        let net = net.map_or(String::new(), |[auc, best]| format!(" {auc:>8} {best:>9}"));
+        let net = net.map_or(String::new(), |[auc, best, top]| {
+            format!(" {auc:>8} {best:>9} {top:>9}")
+        });
         println!(
             "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{inside} {scripted:>9}{net}"
         );
     };
     let scored = cases.iter().any(|c| c.net.is_some());
     let header = if scored {
-        format!(" {:>8} {:>9}", "net AUC", "net best")
+        format!(
+            " {:>8} {:>9} {:>9}",
+            "net AUC",
+            "net best",
+            format!("net top{TOP_K}")
+        )
     } else {
         String::new()
     };
@@ -376,7 +455,7 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
             case.scripted,
             case.net
                 .as_ref()
-                .map(|n| [auc(n.net_auc), percent(n.net_best)]),
+                .map(|n| [auc(n.net_auc), percent(n.net_best), percent(n.net_top_k)]),
         );
     }
     let mean = |field: &dyn Fn(&CaseGrasps) -> Option<f64>| {
@@ -387,6 +466,7 @@ fn print_table(cases: &[CaseGrasps], args: &GraspsArgs) {
         [
             auc(mean(&|c| c.net.as_ref().and_then(|n| n.net_auc))),
             percent(mean(&|c| c.net.as_ref().map(|n| n.net_best)).unwrap_or(0.0)),
+            percent(mean(&|c| c.net.as_ref().map(|n| n.net_top_k)).unwrap_or(0.0)),
         ]
     });
     let share = |field: fn(&CaseGrasps) -> f64| mean(&|c| Some(field(c))).unwrap_or(0.0);
