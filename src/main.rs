@@ -15,10 +15,36 @@ const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 /// Keeps freed memory in the process instead of handing it back to the kernel. The learner
 /// frees and allocates the same megabyte tensors on every step; handed back, each came back
 /// as freshly faulted and zeroed huge pages (a third of a training step's time in `perf`).
-/// A process's memory then stays at its peak rather than growing.
+/// A process's memory then stays at its peak rather than growing. Huge pages as the system
+/// gives them: a process started by a launcher inherits the launcher's opt-out (see
+/// [`hand_back_freed_memory`]) and lifts it here.
 fn keep_freed_memory() {
-    // SAFETY: setting an option is a plain store in mimalloc, valid at any time.
-    unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
+    // SAFETY: setting an option is a plain store in mimalloc, valid at any time; prctl with
+    // PR_SET_THP_DISABLE reads no memory, it sets a flag of this process.
+    unsafe {
+        libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1);
+        libc::prctl(libc::PR_SET_THP_DISABLE, 0, 0, 0, 0);
+    }
+}
+
+/// For a process whose heap is many small objects that come and go (the launcher, the
+/// buffer, a host's supervisor): freed memory goes back to the kernel (mimalloc's default)
+/// and no transparent huge pages, which made a long run's resident memory creep up in whole
+/// 2 MB pages while its heap stayed flat (`pushgrasp bench soak`; RESULTS.md). The
+/// processes it starts inherit the opt-out; those that run the nets lift it.
+fn hand_back_freed_memory() {
+    // SAFETY: as in `keep_freed_memory`. A refusal (an old kernel) leaves huge pages on:
+    // nothing to handle.
+    unsafe { libc::prctl(libc::PR_SET_THP_DISABLE, 1, 0, 0, 0) };
+}
+
+/// Whether `command` runs the nets (their tensors are what keeping freed memory is for).
+fn runs_the_nets(command: &Command) -> bool {
+    match command {
+        Command::Role(args) => !matches!(args.role, wire::Role::Buffer),
+        Command::Train(_) | Command::Join(_) | Command::Cluster(_) | Command::Sweep(_) => false,
+        _ => true,
+    }
 }
 
 #[derive(Parser)]
@@ -66,8 +92,13 @@ enum Command {
 }
 
 fn main() -> Result<()> {
-    keep_freed_memory();
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    if runs_the_nets(&cli.command) {
+        keep_freed_memory();
+    } else {
+        hand_back_freed_memory();
+    }
+    match cli.command {
         Command::Scene(command) => scene_tools::run(command),
         Command::Episode(args) => scene_tools::episode(&args),
         Command::Train(args) => runtime::train(&args),

@@ -22,7 +22,7 @@ use wire::{Inbox, Outbox, Role, Topic, Transport};
 
 use crate::actor::ActorId;
 use crate::config::RunConfig;
-use crate::launch::shm_namespace;
+use crate::launch::open_launch;
 use crate::progress::Watch;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
@@ -119,11 +119,10 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
     std::fs::write(dir.config(), &placement.config)?;
-    // This host's own shared memory: named after the run and this directory, as a run's is.
-    let namespace = shm_namespace(&args.run_id, &dir)?;
-    wire::ShmTransport::remove_stale(&namespace)?;
-    let transport: Arc<dyn Transport + Send + Sync> =
-        Arc::new(wire::ShmTransport::new(&namespace, "bridge")?);
+    // This host's own shared memory: named after the run, this directory and this launch, as
+    // a run's is (a host killed while it made a service rejoins under a namespace of its own).
+    let (namespace, transport) = open_launch(&args.run_id, &dir, "bridge")?;
+    let transport: Arc<dyn Transport + Send + Sync> = Arc::new(transport);
     let bridge = HostBridge::start(session, keys, &host, transport.clone())?;
     let signals = Signals::install()?;
     let mut status = Inbox::open(transport.as_ref(), Topic::Status)?;

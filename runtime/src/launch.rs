@@ -222,10 +222,7 @@ fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)>
         };
         return Ok((wiring, Arc::new(transport)));
     }
-    let run_space = shm_namespace(run_id, dir)?;
-    wire::ShmTransport::remove_stale(&run_space)?;
-    let namespace = launch_namespace(&run_space);
-    let transport = wire::ShmTransport::new(&namespace, "launcher")?;
+    let (namespace, transport) = open_launch(run_id, dir, "launcher")?;
     Ok((Wiring::Processes { namespace }, Arc::new(transport)))
 }
 
@@ -409,10 +406,24 @@ fn newest_run(logs: &Path) -> Result<String> {
         .ok_or_else(|| anyhow!("--resume: no run directory in {}", logs.display()))
 }
 
+/// This launch's shared memory, as `node`: what the run's dead processes left removed, then a
+/// transport under a namespace of this launch's own ([`launch_namespace`]), which it returns.
+pub(crate) fn open_launch(
+    run_id: &str,
+    dir: &RunDir,
+    node: &str,
+) -> Result<(String, wire::ShmTransport)> {
+    let run_space = shm_namespace(run_id, dir)?;
+    wire::ShmTransport::remove_stale(&run_space)?;
+    let namespace = launch_namespace(&run_space);
+    let transport = wire::ShmTransport::new(&namespace, node)?;
+    Ok((namespace, transport))
+}
+
 /// The name a run's shared-memory services go under: its id (what a person reading
 /// `/dev/shm` recognises) and a hash of its directory, so that runs of one id in different
 /// log directories (two pipelines' `stage1`) never see each other's messages.
-pub(crate) fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
+fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
     use std::hash::Hasher;
     let dir =
         std::fs::canonicalize(dir.path()).with_context(|| format!("{}", dir.path().display()))?;
