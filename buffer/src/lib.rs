@@ -2,10 +2,10 @@
 //!
 //! Steps arrive per episode and wait in an [`EpisodeAssembler`] until the episode ends; then
 //! their observations are compressed (`experience::PackedObservation`, shared by a step's
-//! relabelled copies) and they are stored, with the goal-relabelled copies the paper implies, in a
-//! [`PrioritizedReplay`] that keeps push and grasp experience in separate fixed-size rings,
-//! each with a [`SumTree`] for proportional prioritisation (alpha, annealed beta,
-//! importance-sampling weights, Ape-X initial priorities). A Reverb-style [`RateLimiter`]
+//! relabelled copies) and they are stored, with the goal-relabelled copies the paper
+//! implies, in a [`PrioritizedReplay`] that keeps push and grasp experience in separate
+//! fixed-size rings, each with a [`SumTree`] for proportional prioritisation (alpha, annealed
+//! beta, importance-sampling weights, Ape-X initial priorities). A Reverb-style [`RateLimiter`]
 //! holds the learner's samples to a ratio of the inserts. [`ReplayBuffer`] ties them together
 //! and snapshots to a file. A plain library: it knows nothing of how steps and batches travel.
 
