@@ -7,9 +7,9 @@ use serde::{Deserialize, Serialize};
 use crate::error::{ConfigError, SimError, above};
 use crate::workspace::{self, PixelGrid};
 
-/// A grasp holds an object if it touches both fingers and rose at least this much (m); the
-/// lift must reach it.
-pub(crate) const HELD_MIN_RISE: f32 = 0.05;
+/// The least grasp lift (m): a grasp names the highest object in the scene the one it holds,
+/// so the lift must carry it clear of the others.
+const MIN_GRASP_LIFT: f32 = 0.05;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -70,9 +70,8 @@ impl SimConfig {
             self.drop_square,
             (Bound::Excluded(0.0), Bound::Included(workspace::SIDE)),
         )?;
-        // A grasp that lifts less than a held object must rise can never succeed.
-        ConfigError::check_range("grasp_lift", self.grasp_lift, HELD_MIN_RISE..).map_err(|e| {
-            let why = format!("{} (the rise a held object is judged by)", e.why);
+        ConfigError::check_range("grasp_lift", self.grasp_lift, MIN_GRASP_LIFT..).map_err(|e| {
+            let why = format!("{} (a held object must rise clear of the scene)", e.why);
             ConfigError::new(e.field, why)
         })
     }

@@ -31,7 +31,6 @@ const PARK_HEIGHT: f32 = 1.0;
 pub(crate) struct Gripper {
     palm: RigidBodyHandle,
     fingers: [RigidBodyHandle; 2],
-    finger_colliders: [ColliderHandle; 2],
     joints: [ImpulseJointHandle; 2],
 }
 
@@ -55,12 +54,11 @@ impl Gripper {
                 .collision_groups(groups),
         );
         let mut fingers = [palm; 2];
-        let mut finger_colliders = [ColliderHandle::invalid(); 2];
         let mut joints = [ImpulseJointHandle::invalid(); 2];
         for (i, side) in [1.0f32, -1.0].into_iter().enumerate() {
             let axis = Vector::new(side, 0.0, 0.0);
             let offset = finger_offset(MAX_OPENING);
-            let (finger, collider) = world.insert(
+            let (finger, _) = world.insert(
                 RigidBodyBuilder::dynamic()
                     .translation(park_point() + Vector::new(side * offset, 0.0, FINGER_HALF[2]))
                     .gravity_scale(0.0)
@@ -79,13 +77,11 @@ impl Gripper {
                 .motor_max_force(GRIP_FORCE)
                 .contacts_enabled(false);
             fingers[i] = finger;
-            finger_colliders[i] = collider;
             joints[i] = world.insert_impulse_joint(palm, finger, joint);
         }
         Self {
             palm,
             fingers,
-            finger_colliders,
             joints,
         }
     }
@@ -154,23 +150,6 @@ impl Gripper {
             .iter()
             .map(|&f| (world.bodies[f].linvel() - palm).length())
             .fold(0.0, f32::max)
-    }
-
-    /// Colliders each finger touches now: those the solver pushes against.
-    pub(crate) fn touching(&self, world: &PhysicsWorld) -> [Vec<ColliderHandle>; 2] {
-        self.finger_colliders.map(|finger| {
-            world
-                .contact_pairs_with(finger)
-                .filter(|pair| pair.has_any_active_contact())
-                .map(|pair| {
-                    if pair.collider1 == finger {
-                        pair.collider2
-                    } else {
-                        pair.collider1
-                    }
-                })
-                .collect()
-        })
     }
 }
 

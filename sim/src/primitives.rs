@@ -8,7 +8,6 @@ use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Heightmaps;
-use crate::config::HELD_MIN_RISE;
 use crate::error::SimError;
 use crate::gripper::MAX_OPENING;
 use crate::tabletop::{ObjectId, Tabletop};
@@ -40,6 +39,11 @@ const CLOSE_MAX_S: f32 = 0.3;
 const CLOSE_STOPPED_SPEED: f32 = 0.002;
 /// Time held still after the lift before the grasp is judged (s).
 const HOLD_S: f32 = 0.1;
+/// After the lift the jaws count as closed on nothing below this gap (m). The original
+/// judges its grasp by whether the re-closed jaws close fully (`robot.py`, `close_gripper`:
+/// joint past -0.045 of its travel); that gap is not given, and every object here is held
+/// with a centimetre or more between the pads, so any gap under that gives the same verdicts.
+const JAWS_CLOSED_GAP: f32 = 0.005;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -199,10 +203,6 @@ impl Tabletop {
                 break;
             }
         }
-        let heights_before: Vec<(ObjectId, f32)> = self
-            .objects()
-            .map(|o| (o.id, o.pose.translation.z))
-            .collect();
         let lift = self.config().grasp_lift;
         let lifted = start + Vector::Z * lift;
         self.move_tool(lifted, rotation, LIFT_SPEED);
@@ -212,8 +212,14 @@ impl Tabletop {
             self.step();
         }
 
+        // Judged as the original judges it: the jaws, still squeezing, did not close on
+        // nothing, and what they hold is the highest object in the scene.
         let final_opening = self.gripper.opening(&self.world);
-        let grasped = self.held_object(&heights_before);
+        let grasped = if final_opening > JAWS_CLOSED_GAP {
+            self.highest_object()
+        } else {
+            None
+        };
         if let Some(id) = grasped {
             self.remove_object(id);
         }
@@ -229,23 +235,11 @@ impl Tabletop {
         }
     }
 
-    /// The object between the fingers: touching both and lifted; the highest if several.
-    fn held_object(&self, heights_before: &[(ObjectId, f32)]) -> Option<ObjectId> {
-        let [a, b] = self.gripper.touching(&self.world);
-        let on_a: Vec<ObjectId> = a
-            .iter()
-            .filter_map(|&c| self.object_of_collider(c))
-            .collect();
-        b.iter()
-            .filter_map(|&c| self.object_of_collider(c))
-            .filter(|id| on_a.contains(id))
-            .filter_map(|id| {
-                let before = heights_before.iter().find(|(i, _)| *i == id)?.1;
-                let now = self.object(id)?.pose.translation.z;
-                (now - before >= HELD_MIN_RISE).then_some((id, now))
-            })
-            .max_by(|p, q| p.1.total_cmp(&q.1))
-            .map(|(id, _)| id)
+    /// The object whose origin is highest: after a lift, the one in the jaws.
+    fn highest_object(&self) -> Option<ObjectId> {
+        self.objects()
+            .max_by(|a, b| a.pose.translation.z.total_cmp(&b.pose.translation.z))
+            .map(|o| o.id)
     }
 
     /// Moves the tool in a straight line at a speed, position-controlled as the original's

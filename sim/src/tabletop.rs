@@ -269,10 +269,4 @@ impl Tabletop {
         self.world.remove_body(object.body);
         true
     }
-
-    /// The id of the object a collider belongs to, if any.
-    pub(crate) fn object_of_collider(&self, collider: ColliderHandle) -> Option<ObjectId> {
-        let body = self.world.colliders[collider].parent()?;
-        self.objects.iter().find(|o| o.body == body).map(|o| o.id)
-    }
 }
