@@ -1,5 +1,5 @@
 //! A parallel-jaw gripper: a kinematic palm carrying two dynamic fingers on prismatic joints
-//! closed by force-limited position motors, so what it holds is decided by contact and
+//! driven by force-limited velocity motors, so what it holds is decided by contact and
 //! friction alone.
 //!
 //! The palm's frame is the tool frame: its origin is the centre of the fingertips' lower end,
@@ -13,19 +13,41 @@ use crate::workspace;
 /// Finger half extents: along the jaw, across it, and vertically (a 5 cm finger).
 const FINGER_HALF: [f32; 3] = [0.005, 0.01, 0.025];
 /// Gap between the fingers' inner faces when fully open.
-pub(crate) const MAX_OPENING: f32 = 0.10;
+const MAX_OPENING: f32 = 0.10;
 /// A finger of about 100 g, weightless on its joint: too light a finger with a strong motor
 /// passes through what it grips.
 const FINGER_MASS: f32 = 0.1;
 /// Rubber pads.
 const FINGER_FRICTION: f32 = 1.0;
-/// The jaw motor: stiffness (N/m) and damping (N s/m) of the position servo, and its force
-/// limit, which is the grip force.
-const MOTOR_STIFFNESS: f32 = 400.0;
-const MOTOR_DAMPING: f32 = 20.0;
-const GRIP_FORCE: f32 = 5.0;
+/// The jaw motors, as the original drives its RG2's one joint (`robot.py`, `close_gripper`
+/// and `open_gripper`): closing at 0.5 m/s with a force of 100 N, opening at 0.5 m/s with
+/// 20 N. The joint's speed is taken as the gap's (each finger moves at half of it) and its
+/// force as each pad's squeeze.
+const JAW_SPEED: f32 = 0.5;
+const GRIP_FORCE: f32 = 100.0;
+const OPEN_FORCE: f32 = 20.0;
+/// Damping of the velocity motors (N s/m): high enough that a motor holds its speed up to
+/// its force limit, as a velocity-controlled joint does, rather than acting as a spring.
+const MOTOR_DAMPING: f32 = 1.0e4;
 /// Where the gripper waits between actions, well clear of the scene.
 const PARK_HEIGHT: f32 = 1.0;
+
+/// Where the jaw motors drive the fingers: to the joints' open or closed limit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Jaws {
+    Open,
+    Closed,
+}
+
+impl Jaws {
+    /// The gap between the pads at this limit.
+    fn gap(self) -> f32 {
+        match self {
+            Jaws::Open => MAX_OPENING,
+            Jaws::Closed => 0.0,
+        }
+    }
+}
 
 #[derive(Clone)]
 pub(crate) struct Gripper {
@@ -73,8 +95,8 @@ impl Gripper {
                 .local_anchor2(Vector::ZERO)
                 .limits([FINGER_HALF[0], finger_offset(MAX_OPENING)])
                 .motor_model(MotorModel::ForceBased)
-                .motor_position(offset, MOTOR_STIFFNESS, MOTOR_DAMPING)
-                .motor_max_force(GRIP_FORCE)
+                .motor_velocity(JAW_SPEED / 2.0, MOTOR_DAMPING)
+                .motor_max_force(OPEN_FORCE)
                 .contacts_enabled(false);
             fingers[i] = finger;
             joints[i] = world.insert_impulse_joint(palm, finger, joint);
@@ -86,11 +108,11 @@ impl Gripper {
         }
     }
 
-    /// Puts the gripper at a tool pose with the given gap, at rest, before an action starts:
-    /// the gripper arrives from out of the scene, so nothing it touches is disturbed.
-    pub(crate) fn place(&self, world: &mut PhysicsWorld, tool: Pose, opening: f32) {
+    /// Puts the gripper at a tool pose with its jaws at a limit, at rest, before an action
+    /// starts: the gripper arrives from out of the scene, so nothing it touches is disturbed.
+    pub(crate) fn place(&self, world: &mut PhysicsWorld, tool: Pose, jaws: Jaws) {
         world.bodies[self.palm].set_position(tool, true);
-        let offset = finger_offset(opening);
+        let offset = finger_offset(jaws.gap());
         for (i, side) in [1.0f32, -1.0].into_iter().enumerate() {
             let local = Vector::new(side * offset, 0.0, FINGER_HALF[2]);
             let finger = &mut world.bodies[self.fingers[i]];
@@ -101,25 +123,27 @@ impl Gripper {
             finger.set_linvel(Vector::ZERO, true);
             finger.set_angvel(Vector::ZERO, true);
         }
-        self.command_opening(world, opening);
+        self.command(world, jaws);
     }
 
     /// Moves the gripper back to its parking place, open.
     pub(crate) fn park(&self, world: &mut PhysicsWorld) {
-        self.place(world, Pose::from_translation(park_point()), MAX_OPENING);
+        self.place(world, Pose::from_translation(park_point()), Jaws::Open);
     }
 
-    /// Sets the jaw motors' target gap; a target below the closed gap squeezes with the
-    /// full grip force.
-    pub(crate) fn command_opening(&self, world: &mut PhysicsWorld, opening: f32) {
+    /// Drives the jaws towards a limit; closed on an object, they squeeze it with the full
+    /// grip force.
+    pub(crate) fn command(&self, world: &mut PhysicsWorld, jaws: Jaws) {
+        let (speed, force) = match jaws {
+            Jaws::Open => (JAW_SPEED / 2.0, OPEN_FORCE),
+            Jaws::Closed => (-JAW_SPEED / 2.0, GRIP_FORCE),
+        };
         for joint in self.joints {
             if let Some(joint) = world.impulse_joints.get_mut(joint, true) {
-                joint.data.set_motor_position(
-                    JointAxis::LinX,
-                    finger_offset(opening),
-                    MOTOR_STIFFNESS,
-                    MOTOR_DAMPING,
-                );
+                joint
+                    .data
+                    .set_motor_velocity(JointAxis::LinX, speed, MOTOR_DAMPING)
+                    .set_motor_max_force(JointAxis::LinX, force);
             }
         }
     }

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Heightmaps;
 use crate::error::SimError;
-use crate::gripper::MAX_OPENING;
+use crate::gripper::Jaws;
 use crate::tabletop::{ObjectId, Tabletop};
 use crate::workspace;
 
@@ -163,8 +163,11 @@ impl Tabletop {
         );
         let rotation = Rotation::from_rotation_z(angle);
         let above = Vector::new(x, y, z + APPROACH_HEIGHT);
-        self.gripper
-            .place(&mut self.world, Pose::from_parts(above, rotation), 0.0);
+        self.gripper.place(
+            &mut self.world,
+            Pose::from_parts(above, rotation),
+            Jaws::Closed,
+        );
         self.move_tool(start, rotation, DESCEND_SPEED);
         self.move_tool(end, rotation, PUSH_SPEED);
         self.move_tool(end + Vector::Z * APPROACH_HEIGHT, rotation, LIFT_SPEED);
@@ -187,13 +190,12 @@ impl Tabletop {
         self.gripper.place(
             &mut self.world,
             Pose::from_parts(above, rotation),
-            MAX_OPENING,
+            Jaws::Open,
         );
         let start = Vector::new(x, y, z);
         self.move_tool(start, rotation, DESCEND_SPEED);
 
-        // Close: squeeze towards a negative gap so the motor presses with its full force.
-        self.gripper.command_opening(&mut self.world, -0.01);
+        self.gripper.command(&mut self.world, Jaws::Closed);
         let close_steps = self.seconds_to_steps(CLOSE_MAX_S);
         for i in 0..close_steps {
             self.gripper
@@ -223,7 +225,7 @@ impl Tabletop {
         if let Some(id) = grasped {
             self.remove_object(id);
         }
-        self.gripper.command_opening(&mut self.world, MAX_OPENING);
+        self.gripper.command(&mut self.world, Jaws::Open);
         let removed = self.remove_fallen();
         ActionOutcome {
             grasped,

@@ -76,7 +76,7 @@ impl Tabletop {
         world.integration_parameters.length_unit = 0.1;
         // Contacts between moving bodies are springs whose stiffness scales with the bodies'
         // mass (m (2 pi f)^2): at rapier's default 30 Hz a 75 g cube squeezed by 100 N pads
-        // gives way by centimetres and the fingers pass through it; at 120 Hz by millimetres.
+        // gives way by centimetres and the fingers pass through it; at 120 Hz by 4 mm a side.
         world.integration_parameters.contact_softness = SpringCoefficients::new(120.0, 10.0);
 
         let half = workspace::SIDE / 2.0;
