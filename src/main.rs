@@ -73,6 +73,9 @@ enum Command {
     Cluster(sweep::runner::cluster::ClusterArgs),
     /// The three stages in order, each from the previous stage's checkpoint.
     Pipeline(runtime::pipeline::PipelineArgs),
+    /// Pretrain the nets' trunks on the simulator's object outlines, for a first stage to
+    /// start from.
+    Pretrain(runtime::PretrainArgs),
     /// One role of a training run (started by `train`, not by hand).
     #[command(hide = true)]
     Role(runtime::RoleArgs),
@@ -105,6 +108,7 @@ fn main() -> Result<()> {
         Command::Join(args) => runtime::join(&args),
         Command::Cluster(args) => sweep::runner::cluster::run(&args),
         Command::Pipeline(args) => runtime::pipeline::run(&args),
+        Command::Pretrain(args) => runtime::pretrain(&args),
         Command::Role(args) => runtime::role_process(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Inspect(args) => inspect::inspect(&args),

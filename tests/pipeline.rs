@@ -1,6 +1,7 @@
-//! `pushgrasp pipeline` end to end on a tiny budget: three stages in order, each starting
-//! from the previous stage's checkpoint, a `[set]` that switches parts of the method off in
-//! every stage, a second start that skips what finished, and `inspect` joining the stages.
+//! `pushgrasp pipeline` end to end on a tiny budget: three stages in order, the first from
+//! trunks `pushgrasp pretrain` wrote and each other from the previous stage's checkpoint, a
+//! `[set]` that switches parts of the method off in every stage, a second start that skips
+//! what finished, and `inspect` joining the stages.
 
 use std::process::Command;
 
@@ -39,8 +40,26 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
             )
         })
         .collect();
-    // The ablation switches, as configs/ablations/ use them.
-    let set = "[set]\npush_reward = \"none\"\nbuffer.relabel = false\n";
+    let pretrained = work.path().join("pretrained");
+    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
+        .arg("pretrain")
+        .arg("--config")
+        .arg(configs.join("stage1.toml"))
+        .arg("--out")
+        .arg(&pretrained)
+        .args(["--scenes", "2", "--steps", "2", "--batch", "1"])
+        .output()
+        .expect("pushgrasp runs");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    // The ablation switches, as configs/ablations/ use them, and the first stage's start.
+    let set = format!(
+        "[set]\npush_reward = \"none\"\nbuffer.relabel = false\ninit_from = {:?}\n",
+        pretrained
+    );
     std::fs::write(&file, format!("{set}{stages}")).unwrap();
     let logs = work.path().join("logs");
     let said = pipeline(&file, &logs);
@@ -68,7 +87,7 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
         );
         let init = config.get("init_from").and_then(|v| v.as_str());
         if stage == 1 {
-            assert_eq!(init, None);
+            assert_eq!(init.map(std::path::PathBuf::from), Some(pretrained.clone()));
         } else {
             let previous = dir.join(format!("stage{}/checkpoint", stage - 1));
             assert_eq!(

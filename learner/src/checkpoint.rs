@@ -18,7 +18,7 @@ const MANIFEST: &str = "manifest.toml";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Manifest {
-    /// The training stage (1, 2 or 3).
+    /// The training stage (1, 2 or 3; 0 for trunks pretrained by `pushgrasp pretrain`).
     pub stage: u8,
     /// Learner updates taken when it was written.
     pub updates: u64,

@@ -6,6 +6,8 @@ use thiserror::Error;
 pub enum LearnerError {
     #[error(transparent)]
     QNet(#[from] qnet::QNetError),
+    #[error(transparent)]
+    Sim(#[from] sim::SimError),
     #[error("a {0:?} sample reached the trainer while that net is frozen")]
     Frozen(sim::Primitive),
     #[error("{path}: {message}")]

@@ -143,24 +143,56 @@ pub struct PrimitiveNet {
 
 impl PrimitiveNet {
     pub fn new(config: &QNetConfig, device: &Device) -> Self {
-        let widths = &config.trunk_widths;
-        // Three trunks' last widths side by side (a trunk without blocks passes its planes).
-        let last = |planes: usize| widths.last().copied().unwrap_or(planes);
-        let features = last(3) + 2 * last(1);
+        // Trunks first, then the head: the order the weights are drawn in.
+        let colour = Trunk::new(3, config, device);
+        let depth = Trunk::new(1, config, device);
+        let mask = Trunk::new(1, config, device);
+        let fused = if config.fuse_context {
+            Trunk::context(Self::features(config), config, device)
+        } else {
+            Trunk { blocks: Vec::new() }
+        };
+        let (head_norm_in, head_hidden, head_norm_hidden, head_out) = Self::head(config, device);
         Self {
-            colour: Trunk::new(3, config, device),
-            depth: Trunk::new(1, config, device),
-            mask: Trunk::new(1, config, device),
-            fused: if config.fuse_context {
-                Trunk::context(features, config, device)
-            } else {
-                Trunk { blocks: Vec::new() }
-            },
-            head_norm_in: BatchNormConfig::new(features).init(device),
-            head_hidden: Conv2dConfig::new([features, config.head_width], [1, 1]).init(device),
-            head_norm_hidden: BatchNormConfig::new(config.head_width).init(device),
-            head_out: Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device),
+            colour,
+            depth,
+            mask,
+            fused,
+            head_norm_in,
+            head_hidden,
+            head_norm_hidden,
+            head_out,
         }
+    }
+
+    /// Starts the head afresh, as a new net's, keeping the trunks (pretrained on another
+    /// task).
+    pub fn fresh_head(&mut self, config: &QNetConfig, device: &Device) {
+        (
+            self.head_norm_in,
+            self.head_hidden,
+            self.head_norm_hidden,
+            self.head_out,
+        ) = Self::head(config, device);
+    }
+
+    /// The paper's head over the trunks' features: BN, 1x1 conv to `head_width`, BN, 1x1
+    /// conv to one Q value.
+    fn head(config: &QNetConfig, device: &Device) -> (BatchNorm, Conv2d, BatchNorm, Conv2d) {
+        let features = Self::features(config);
+        (
+            BatchNormConfig::new(features).init(device),
+            Conv2dConfig::new([features, config.head_width], [1, 1]).init(device),
+            BatchNormConfig::new(config.head_width).init(device),
+            Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device),
+        )
+    }
+
+    /// The three trunks' last widths side by side (a trunk without blocks passes its
+    /// planes).
+    fn features(config: &QNetConfig) -> usize {
+        let last = |planes: usize| config.trunk_widths.last().copied().unwrap_or(planes);
+        last(3) + 2 * last(1)
     }
 
     /// Low-resolution Q maps `[n, 1, P / d, P / d]` of rotated inputs colour `[n, 3, P, P]`,
@@ -217,6 +249,29 @@ mod tests {
             values(conv.weight.val().grad(&grads).unwrap()),
             bias.into_data().try_to_vec::<f32>().unwrap(),
         ]
+    }
+
+    #[test]
+    fn a_fresh_head_keeps_the_trunks_and_redraws_the_head() {
+        let device = Device::flex();
+        let config = QNetConfig {
+            context_dilations: vec![1],
+            fuse_context: true,
+            ..QNetConfig::default()
+        };
+        let net = PrimitiveNet::new(&config, &device);
+        let values = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+        let trunk = |net: &PrimitiveNet| {
+            [&net.colour, &net.depth, &net.mask, &net.fused]
+                .map(|trunk| values(trunk.blocks[0].conv.weight.val()))
+        };
+        let before = (trunk(&net), values(net.head_out.weight.val()));
+        let mut fresh = net.clone();
+        fresh.fresh_head(&config, &device);
+        assert_eq!(trunk(&fresh), before.0);
+        assert_ne!(values(fresh.head_out.weight.val()), before.1);
+        let x = |channels| Tensor::<4>::ones([1, channels, 16, 16], &device);
+        assert_eq!(fresh.forward(x(3), x(1), x(1)).dims(), [1, 1, 4, 4]);
     }
 
     #[test]

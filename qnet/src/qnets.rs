@@ -35,6 +35,15 @@ impl QNets {
         }
     }
 
+    /// Both nets with their heads started afresh and their trunks kept (pretrained on
+    /// another task).
+    pub fn with_fresh_heads(mut self, config: &QNetConfig) -> Self {
+        let device = self.device();
+        self.push.fresh_head(config, &device);
+        self.grasp.fresh_head(config, &device);
+        self
+    }
+
     /// The device the nets' tensors live on.
     pub fn device(&self) -> Device {
         self.devices()

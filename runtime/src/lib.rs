@@ -14,6 +14,7 @@ pub mod join;
 pub mod launch;
 pub mod learner;
 pub mod pipeline;
+pub mod pretrain;
 pub mod progress;
 pub mod record;
 pub mod role;
@@ -33,6 +34,7 @@ use wire::{Control, Inbox, Message, Role};
 
 pub use join::{JoinArgs, join};
 pub use launch::{TrainArgs, train};
+pub use pretrain::{PretrainArgs, pretrain};
 pub use progress::{Progress, Summary};
 pub use role::{RoleArgs, RoleId, role_process};
 pub use run_dir::RunDir;
