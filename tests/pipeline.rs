@@ -7,14 +7,11 @@ use std::process::Command;
 
 use serde_json::Value;
 
-fn pipeline(file: &std::path::Path, logs: &std::path::Path) -> String {
-    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-        .arg("pipeline")
-        .arg("--config")
-        .arg(file)
-        .arg("--logs")
-        .arg(logs)
-        .args(["--id", "smoke", "--threads"])
+/// A `pushgrasp` command with `args`, run from the project's root; its standard output, once
+/// it succeeded.
+fn pushgrasp(args: impl FnOnce(&mut Command) -> &mut Command) -> String {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_pushgrasp"));
+    let output = args(&mut command)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .expect("pushgrasp runs");
@@ -24,6 +21,17 @@ fn pipeline(file: &std::path::Path, logs: &std::path::Path) -> String {
         String::from_utf8_lossy(&output.stderr)
     );
     String::from_utf8_lossy(&output.stdout).into_owned()
+}
+
+fn pipeline(file: &std::path::Path, logs: &std::path::Path) -> String {
+    pushgrasp(|c| {
+        c.arg("pipeline")
+            .arg("--config")
+            .arg(file)
+            .arg("--logs")
+            .arg(logs)
+            .args(["--id", "smoke", "--threads"])
+    })
 }
 
 #[test]
@@ -41,20 +49,14 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
         })
         .collect();
     let pretrained = work.path().join("pretrained");
-    let output = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-        .arg("pretrain")
-        .arg("--config")
-        .arg(configs.join("stage1.toml"))
-        .arg("--out")
-        .arg(&pretrained)
-        .args(["--scenes", "2", "--steps", "2", "--batch", "1"])
-        .output()
-        .expect("pushgrasp runs");
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    pushgrasp(|c| {
+        c.arg("pretrain")
+            .arg("--config")
+            .arg(configs.join("stage1.toml"))
+            .arg("--out")
+            .arg(&pretrained)
+            .args(["--scenes", "2", "--steps", "2", "--batch", "1"])
+    });
     // The ablation switches, as configs/ablations/ use them, and the first stage's start.
     let set = format!(
         "[set]\npush_reward = \"none\"\nbuffer.relabel = false\ninit_from = {:?}\n",
@@ -107,20 +109,14 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
 
     // inspect reads the pipeline directory as its three stages and joins them in one line.
     let plot = work.path().join("curves.svg");
-    let inspect = Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
-        .arg("inspect")
-        .arg(&dir)
-        .arg("--json")
-        .arg("--plot")
-        .arg(&plot)
-        .output()
-        .unwrap();
-    assert!(
-        inspect.status.success(),
-        "{}",
-        String::from_utf8_lossy(&inspect.stderr)
-    );
-    let reports: Value = serde_json::from_slice(&inspect.stdout).unwrap();
+    let inspect = pushgrasp(|c| {
+        c.arg("inspect")
+            .arg(&dir)
+            .arg("--json")
+            .arg("--plot")
+            .arg(&plot)
+    });
+    let reports: Value = serde_json::from_str(&inspect).unwrap();
     let names: Vec<&str> = reports
         .as_array()
         .unwrap()
