@@ -29,6 +29,11 @@ pub struct LearningConfig {
     /// Whether actors also act and bootstrap with the average (else with the trained nets,
     /// and only checkpoints hold the average).
     pub publish_average: bool,
+    /// Each grasp also teaches its mirror image: the same label at the mirrored pixel of
+    /// the mirrored observation, at the mirrored jaw angle. A grasp's outcome is the same in
+    /// the mirror scene, for the jaws and every object shape are mirror-symmetric. Off by
+    /// default, as the paper; it doubles a grasp update's items.
+    pub mirror_grasps: bool,
 }
 
 impl Default for LearningConfig {
@@ -43,6 +48,7 @@ impl Default for LearningConfig {
             huber_delta: 1.0,
             polyak_rate: 1.0,
             publish_average: true,
+            mirror_grasps: false,
         }
     }
 }

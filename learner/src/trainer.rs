@@ -1,7 +1,8 @@
 //! One learner update: the Q value at each sample's executed pixel (and, for a grasp, the
-//! same pixel at the symmetric rotation k + 8: a parallel jaw is symmetric), the Huber loss
-//! against the label weighted by the replay's importance-sampling weight, and an Adam step
-//! on the net being trained. Every other pixel contributes nothing.
+//! same pixel at the symmetric rotation k + 8: a parallel jaw is symmetric; with
+//! `mirror_grasps`, also the grasp's mirror image), the Huber loss against the label
+//! weighted by the replay's importance-sampling weight, and an Adam step on the net being
+//! trained. Every other pixel contributes nothing.
 
 use burn::module::Module;
 use burn::nn::loss::HuberLossConfig;
@@ -173,21 +174,20 @@ impl Trainer {
         if let Some(other) = samples.iter().find(|s| s.action.primitive != primitive) {
             return Err(LearnerError::Frozen(other.action.primitive));
         }
-        // Each sample at its rotation, and a grasp also at the symmetric one.
-        let rotations = |k: u8| match primitive {
-            Primitive::Grasp => vec![k, (k + ROTATIONS / 2) % ROTATIONS],
-            Primitive::Push => vec![k],
+        let mirrors: Vec<NetInput> = if primitive == Primitive::Grasp && self.config.mirror_grasps {
+            samples.iter().map(|s| s.input.mirrored()).collect()
+        } else {
+            Vec::new()
         };
-        let per_sample = rotations(0).len();
-        let items: Vec<(&NetInput, u8)> = samples
+        let items: Vec<Vec<Item>> = samples
             .iter()
-            .flat_map(|s| {
-                rotations(s.action.rotation)
-                    .into_iter()
-                    .map(move |k| (&s.input, k))
-            })
+            .enumerate()
+            .map(|(i, s)| items(s, mirrors.get(i)))
             .collect();
-        let maps = self.nets.q_maps(primitive, &items, &self.geometry)?;
+        let per_sample = items.first().map_or(1, Vec::len);
+        let items: Vec<Item> = items.into_iter().flatten().collect();
+        let inputs: Vec<(&NetInput, u8)> = items.iter().map(|i| (i.input, i.rotation)).collect();
+        let maps = self.nets.q_maps(primitive, &inputs, &self.geometry)?;
 
         let repeat = |f: &dyn Fn(&Sample) -> f32| -> Vec<f32> {
             samples
@@ -195,10 +195,7 @@ impl Trainer {
                 .flat_map(|s| std::iter::repeat_n(f(s), per_sample))
                 .collect()
         };
-        let pixels: Vec<(usize, usize)> = samples
-            .iter()
-            .flat_map(|s| std::iter::repeat_n((s.action.row, s.action.col), per_sample))
-            .collect();
+        let pixels: Vec<(usize, usize)> = items.iter().map(|i| i.pixel).collect();
         let labels = repeat(&|s| s.label);
         let weights = repeat(&|s| s.weight);
         let (loss, q) =
@@ -262,6 +259,54 @@ impl Trainer {
         self.updates = saved.manifest.updates;
         Ok(())
     }
+}
+
+/// One Q value a sample teaches: an observation, a rotation and a pixel.
+struct Item<'a> {
+    input: &'a NetInput,
+    rotation: u8,
+    pixel: (usize, usize),
+}
+
+/// What a sample teaches, its own action first: a grasp also at the symmetric rotation
+/// k + 8, and on `mirror` (its observation mirrored) at the mirrored pixel and angle. A
+/// reflection takes the jaw angle a to -a, or to pi - a, depending on the axis; the jaws'
+/// symmetry makes both the same grasp, so both rotations are taught.
+fn items<'a>(sample: &'a Sample, mirror: Option<&'a NetInput>) -> Vec<Item<'a>> {
+    let Action {
+        primitive,
+        rotation: k,
+        row,
+        col,
+    } = sample.action;
+    let half = ROTATIONS / 2;
+    let own = Item {
+        input: &sample.input,
+        rotation: k,
+        pixel: (row, col),
+    };
+    if primitive == Primitive::Push {
+        return vec![own];
+    }
+    let symmetric = Item {
+        rotation: (k + half) % ROTATIONS,
+        ..own
+    };
+    let mut items = vec![own, symmetric];
+    if let Some(mirror) = mirror {
+        let pixel = (row, mirror.side - 1 - col);
+        for rotation in [
+            (ROTATIONS - k) % ROTATIONS,
+            (ROTATIONS + half - k) % ROTATIONS,
+        ] {
+            items.push(Item {
+                input: mirror,
+                rotation,
+                pixel,
+            });
+        }
+    }
+    items
 }
 
 /// The weighted Huber loss of Q maps `[n, side, side]` at one pixel each, summed, and the Q

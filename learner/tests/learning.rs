@@ -10,7 +10,7 @@ use learner::{
     executed_pixel_loss,
 };
 use qnet::{NetInput, QNetConfig, QNets};
-use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
+use sim::{Action, Camera, Primitive, ROTATIONS, SimConfig, Tabletop};
 
 /// A net's parameters as bytes, to compare.
 fn weights(net: &qnet::PrimitiveNet) -> Vec<u8> {
@@ -301,6 +301,40 @@ fn steps_served_by_the_compressing_buffer_train_as_the_raw_steps_do() {
         last = trainer.train_step(&batch).unwrap().loss;
     }
     assert!(last < 0.3 * first, "loss {first} -> {last}");
+}
+
+#[test]
+fn a_grasp_and_its_mirror_image_teach_as_two_grasps() {
+    // With `mirror_grasps` a grasp teaches what it and its mirror image (the observation
+    // mirrored, the pixel's column and the jaw angle mirrored) teach as two samples without:
+    // the same items, so from the same nets the same loss, step after step.
+    let nets = QNets::new(&QNetConfig::default(), &Device::flex());
+    let learning = |mirror_grasps| LearningConfig {
+        learning_rate: 1e-3,
+        mirror_grasps,
+        ..LearningConfig::default()
+    };
+    let mut taught = trainer_from(nets.clone(), learning(true), TrainedNet::Grasp);
+    let mut both = trainer_from(nets, learning(false), TrainedNet::Grasp);
+    let samples = samples(Primitive::Grasp, 1.5);
+    let mirror_images = samples.iter().map(|s| Sample {
+        input: s.input.mirrored(),
+        action: Action {
+            rotation: (ROTATIONS - s.action.rotation) % ROTATIONS,
+            col: s.input.side - 1 - s.action.col,
+            ..s.action
+        },
+        ..s.clone()
+    });
+    let with_mirror_images: Vec<Sample> = samples.iter().cloned().chain(mirror_images).collect();
+    for step in 0..3 {
+        let a = taught.train_step(&samples).unwrap().loss;
+        let b = both.train_step(&with_mirror_images).unwrap().loss;
+        assert!(
+            (a - b).abs() <= 1e-4 * b.abs(),
+            "step {step}: loss {a} taught with mirror images, {b} on them as samples"
+        );
+    }
 }
 
 #[test]

@@ -51,6 +51,24 @@ impl NetInput {
         }
     }
 
+    /// The observation of the scene's mirror image: every plane's rows reversed left to right
+    /// (column `c` becomes `side - 1 - c`).
+    pub fn mirrored(&self) -> Self {
+        let side = self.side;
+        let mirror = |plane: &[f32]| -> Vec<f32> {
+            plane
+                .chunks_exact(side)
+                .flat_map(|row| row.iter().rev().copied())
+                .collect()
+        };
+        Self {
+            side,
+            colour: mirror(&self.colour),
+            depth: mirror(&self.depth),
+            mask: mirror(&self.mask),
+        }
+    }
+
     /// The value each plane takes on the bare table, which padding continues.
     pub fn table_values() -> [f32; 5] {
         let table = sim::camera::TABLE_COLOUR;
@@ -61,5 +79,30 @@ impl NetInput {
             normalise_depth(0.0),
             0.0,
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_mirror_image_reverses_every_row_and_twice_is_the_original() {
+        let side = 3;
+        let plane = |offset: f32| (0..9).map(|i| i as f32 + offset).collect::<Vec<_>>();
+        let input = NetInput {
+            side,
+            colour: [plane(0.0), plane(10.0), plane(20.0)].concat(),
+            depth: plane(30.0),
+            mask: plane(40.0),
+        };
+        let mirror = input.mirrored();
+        assert_eq!(
+            &mirror.depth,
+            &[32.0, 31.0, 30.0, 35.0, 34.0, 33.0, 38.0, 37.0, 36.0]
+        );
+        assert_eq!(&mirror.colour[9..12], &[12.0, 11.0, 10.0]);
+        assert_eq!(&mirror.mask[6..], &[48.0, 47.0, 46.0]);
+        assert_eq!(mirror.mirrored(), input);
     }
 }
