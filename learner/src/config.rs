@@ -34,6 +34,13 @@ pub struct LearningConfig {
     /// the mirror scene, for the jaws and every object shape are mirror-symmetric. Off by
     /// default, as the paper; it doubles a grasp update's items.
     pub mirror_grasps: bool,
+    /// Each sample also teaches a copy of itself moved by up to this many pixels in each
+    /// direction (a shift drawn afresh each update, never none, the pixel kept on the map):
+    /// the same label at the moved pixel of the moved observation, at each rotation the
+    /// sample teaches. Below the trunk's stride (4 pixels) a shift shows the same action at
+    /// another phase of the nets' coarse grid. 0 (the paper) teaches no copy; any other
+    /// value doubles an update's items.
+    pub translate_samples: usize,
 }
 
 impl Default for LearningConfig {
@@ -49,6 +56,7 @@ impl Default for LearningConfig {
             polyak_rate: 1.0,
             publish_average: true,
             mirror_grasps: false,
+            translate_samples: 0,
         }
     }
 }

@@ -1,8 +1,9 @@
 //! One learner update: the Q value at each sample's executed pixel (and, for a grasp, the
 //! same pixel at the symmetric rotation k + 8: a parallel jaw is symmetric; with
-//! `mirror_grasps`, also the grasp's mirror image), the Huber loss against the label
-//! weighted by the replay's importance-sampling weight, and an Adam step on the net being
-//! trained. Every other pixel contributes nothing.
+//! `mirror_grasps`, also the grasp's mirror image; with `translate_samples`, also the
+//! sample moved a few pixels), the Huber loss against the label weighted by the replay's
+//! importance-sampling weight, and an Adam step on the net being trained. Every other pixel
+//! contributes nothing.
 
 use burn::module::Module;
 use burn::nn::loss::HuberLossConfig;
@@ -10,6 +11,8 @@ use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use sim::{Action, Primitive, ROTATIONS};
 
 use crate::averaging::polyak_step;
@@ -179,10 +182,19 @@ impl Trainer {
         } else {
             Vec::new()
         };
+        let shifts = self.shifts(samples);
+        let translated: Vec<NetInput> = samples
+            .iter()
+            .zip(&shifts)
+            .map(|(s, &(rows, cols))| s.input.translated(rows, cols))
+            .collect();
         let items: Vec<Vec<Item>> = samples
             .iter()
             .enumerate()
-            .map(|(i, s)| items(s, mirrors.get(i)))
+            .map(|(i, s)| {
+                let moved = translated.get(i).zip(shifts.get(i).copied());
+                items(s, mirrors.get(i), moved)
+            })
             .collect();
         let per_sample = items.first().map_or(1, Vec::len);
         let items: Vec<Item> = items.into_iter().flatten().collect();
@@ -236,6 +248,32 @@ impl Trainer {
         })
     }
 
+    /// Each sample's translation (rows, columns) for this update when the config
+    /// translates, else none: drawn uniformly from the shifts of at most
+    /// `translate_samples` pixels a direction that move something and keep the sample's
+    /// pixel on the map, from a generator seeded by the update's number (a resumed run
+    /// draws on where it was).
+    fn shifts(&self, samples: &[Sample]) -> Vec<(isize, isize)> {
+        let reach = self.config.translate_samples as isize;
+        if reach == 0 {
+            return Vec::new();
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(self.updates);
+        samples
+            .iter()
+            .map(|s| {
+                let side = s.input.side as isize;
+                let (row, col) = (s.action.row as isize, s.action.col as isize);
+                let on_map = |d: isize, at: isize| (0..side).contains(&(at + d));
+                let shifts: Vec<(isize, isize)> = (-reach..=reach)
+                    .flat_map(|dr| (-reach..=reach).map(move |dc| (dr, dc)))
+                    .filter(|&(dr, dc)| (dr, dc) != (0, 0) && on_map(dr, row) && on_map(dc, col))
+                    .collect();
+                shifts[rng.random_range(0..shifts.len())]
+            })
+            .collect()
+    }
+
     /// Starts from other weights (an earlier stage's nets), and restarts any average from
     /// them.
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
@@ -262,6 +300,7 @@ impl Trainer {
 }
 
 /// One Q value a sample teaches: an observation, a rotation and a pixel.
+#[derive(Clone, Copy)]
 struct Item<'a> {
     input: &'a NetInput,
     rotation: u8,
@@ -269,10 +308,15 @@ struct Item<'a> {
 }
 
 /// What a sample teaches, its own action first: a grasp also at the symmetric rotation
-/// k + 8, and on `mirror` (its observation mirrored) at the mirrored pixel and angle. A
-/// reflection takes the jaw angle a to -a, or to pi - a, depending on the axis; the jaws'
-/// symmetry makes both the same grasp, so both rotations are taught.
-fn items<'a>(sample: &'a Sample, mirror: Option<&'a NetInput>) -> Vec<Item<'a>> {
+/// k + 8; those again on `translated` (its observation moved by (rows, columns)) at the
+/// moved pixel; and a grasp on `mirror` (its observation mirrored) at the mirrored pixel
+/// and angle. A reflection takes the jaw angle a to -a, or to pi - a, depending on the
+/// axis; the jaws' symmetry makes both the same grasp, so both rotations are taught.
+fn items<'a>(
+    sample: &'a Sample,
+    mirror: Option<&'a NetInput>,
+    translated: Option<(&'a NetInput, (isize, isize))>,
+) -> Vec<Item<'a>> {
     let Action {
         primitive,
         rotation: k,
@@ -285,15 +329,33 @@ fn items<'a>(sample: &'a Sample, mirror: Option<&'a NetInput>) -> Vec<Item<'a>> 
         rotation: k,
         pixel: (row, col),
     };
-    if primitive == Primitive::Push {
-        return vec![own];
+    let mut items = vec![own];
+    if primitive == Primitive::Grasp {
+        items.push(Item {
+            rotation: (k + half) % ROTATIONS,
+            ..own
+        });
     }
-    let symmetric = Item {
-        rotation: (k + half) % ROTATIONS,
-        ..own
-    };
-    let mut items = vec![own, symmetric];
-    if let Some(mirror) = mirror {
+    if let Some((input, (rows, cols))) = translated {
+        let pixel = (
+            row.checked_add_signed(rows)
+                .expect("a shift keeps the pixel on the map"),
+            col.checked_add_signed(cols)
+                .expect("a shift keeps the pixel on the map"),
+        );
+        let moved: Vec<Item> = items
+            .iter()
+            .map(|item| Item {
+                input,
+                rotation: item.rotation,
+                pixel,
+            })
+            .collect();
+        items.extend(moved);
+    }
+    if primitive == Primitive::Grasp
+        && let Some(mirror) = mirror
+    {
         let pixel = (row, mirror.side - 1 - col);
         for rotation in [
             (ROTATIONS - k) % ROTATIONS,

@@ -338,6 +338,57 @@ fn a_grasp_and_its_mirror_image_teach_as_two_grasps() {
 }
 
 #[test]
+fn a_sample_and_its_translated_copy_teach_as_two_samples() {
+    // With `translate_samples` a sample teaches what it and a copy moved by some shift of
+    // at most that many pixels (the observation and the pixel moved alike) teach as two
+    // samples without: so one of those shifts gives the same loss from the same nets.
+    let reach = 2;
+    for (primitive, trained) in [
+        (Primitive::Grasp, TrainedNet::Grasp),
+        (Primitive::Push, TrainedNet::Push),
+    ] {
+        let nets = QNets::new(&QNetConfig::default(), &Device::flex());
+        let learning = |translate_samples| LearningConfig {
+            learning_rate: 1e-3,
+            translate_samples,
+            ..LearningConfig::default()
+        };
+        let sample = samples(primitive, 1.5).swap_remove(0);
+        let taught = trainer_from(nets.clone(), learning(reach), trained)
+            .train_step(std::slice::from_ref(&sample))
+            .unwrap()
+            .loss;
+        let reach = reach as isize;
+        let shifts =
+            (-reach..=reach).flat_map(|rows| (-reach..=reach).map(move |cols| (rows, cols)));
+        let matching: Vec<(isize, isize)> = shifts
+            .filter(|&shift| shift != (0, 0))
+            .filter(|&(rows, cols)| {
+                let moved = Sample {
+                    input: sample.input.translated(rows, cols),
+                    action: Action {
+                        row: sample.action.row.wrapping_add_signed(rows),
+                        col: sample.action.col.wrapping_add_signed(cols),
+                        ..sample.action
+                    },
+                    ..sample.clone()
+                };
+                let both = trainer_from(nets.clone(), learning(0), trained)
+                    .train_step(&[sample.clone(), moved])
+                    .unwrap()
+                    .loss;
+                (taught - both).abs() <= 1e-5 * both.abs()
+            })
+            .collect();
+        assert_eq!(
+            matching.len(),
+            1,
+            "{primitive:?}: loss {taught} taught with a translated copy; shifts giving it as two samples: {matching:?}"
+        );
+    }
+}
+
+#[test]
 fn checkpoints_round_trip_to_identical_q_maps() {
     let config = QNetConfig::default();
     let mut trained = trainer(TrainedNet::Grasp);

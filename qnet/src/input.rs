@@ -69,6 +69,34 @@ impl NetInput {
         }
     }
 
+    /// The observation of the scene moved `rows` down and `cols` right (negative: up and
+    /// left): pixel `(r, c)` becomes `(r + rows, c + cols)`, what leaves the map is lost and
+    /// bare table comes in at the opposite edges.
+    pub fn translated(&self, rows: isize, cols: isize) -> Self {
+        let side = self.side;
+        let table = Self::table_values();
+        let from = |to: usize, by: isize| to.checked_add_signed(-by).filter(|&f| f < side);
+        let shift = |plane: &[f32], fill: f32| -> Vec<f32> {
+            (0..side * side)
+                .map(|i| match (from(i / side, rows), from(i % side, cols)) {
+                    (Some(r), Some(c)) => plane[r * side + c],
+                    _ => fill,
+                })
+                .collect()
+        };
+        Self {
+            side,
+            colour: self
+                .colour
+                .chunks_exact(side * side)
+                .zip(table)
+                .flat_map(|(plane, fill)| shift(plane, fill))
+                .collect(),
+            depth: shift(&self.depth, table[3]),
+            mask: shift(&self.mask, table[4]),
+        }
+    }
+
     /// The value each plane takes on the bare table, which padding continues.
     pub fn table_values() -> [f32; 5] {
         let table = sim::camera::TABLE_COLOUR;
@@ -104,5 +132,25 @@ mod tests {
         assert_eq!(&mirror.colour[9..12], &[12.0, 11.0, 10.0]);
         assert_eq!(&mirror.mask[6..], &[48.0, 47.0, 46.0]);
         assert_eq!(mirror.mirrored(), input);
+    }
+
+    #[test]
+    fn a_translation_moves_every_plane_and_brings_in_bare_table() {
+        let side = 3;
+        let plane = |offset: f32| (0..9).map(|i| i as f32 + offset).collect::<Vec<_>>();
+        let input = NetInput {
+            side,
+            colour: [plane(0.0), plane(10.0), plane(20.0)].concat(),
+            depth: plane(30.0),
+            mask: plane(40.0),
+        };
+        let table = NetInput::table_values();
+        let (t, e) = (table[3], table[4]);
+        let moved = input.translated(1, -1);
+        assert_eq!(&moved.depth, &[t, t, t, 31.0, 32.0, t, 34.0, 35.0, t]);
+        assert_eq!(&moved.mask, &[e, e, e, 41.0, 42.0, e, 44.0, 45.0, e]);
+        assert_eq!(&moved.colour[9..12], &[table[1]; 3]);
+        assert_eq!(&moved.colour[21..24], &[21.0, 22.0, table[2]]);
+        assert_eq!(input.translated(0, 0), input);
     }
 }
