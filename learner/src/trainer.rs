@@ -182,17 +182,16 @@ impl Trainer {
         } else {
             Vec::new()
         };
-        let shifts = self.shifts(samples);
-        let translated: Vec<NetInput> = samples
+        let translated: Vec<(NetInput, (isize, isize))> = samples
             .iter()
-            .zip(&shifts)
-            .map(|(s, &(rows, cols))| s.input.translated(rows, cols))
+            .zip(self.shifts(samples))
+            .map(|(s, (rows, cols))| (s.input.translated(rows, cols), (rows, cols)))
             .collect();
         let items: Vec<Vec<Item>> = samples
             .iter()
             .enumerate()
             .map(|(i, s)| {
-                let moved = translated.get(i).zip(shifts.get(i).copied());
+                let moved = translated.get(i).map(|(input, shift)| (input, *shift));
                 items(s, mirrors.get(i), moved)
             })
             .collect();

@@ -114,16 +114,20 @@ impl NetInput {
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_mirror_image_reverses_every_row_and_twice_is_the_original() {
-        let side = 3;
+    /// A 3 x 3 input whose every value says where it is: plane p's values are 10 p + i.
+    fn numbered() -> NetInput {
         let plane = |offset: f32| (0..9).map(|i| i as f32 + offset).collect::<Vec<_>>();
-        let input = NetInput {
-            side,
+        NetInput {
+            side: 3,
             colour: [plane(0.0), plane(10.0), plane(20.0)].concat(),
             depth: plane(30.0),
             mask: plane(40.0),
-        };
+        }
+    }
+
+    #[test]
+    fn a_mirror_image_reverses_every_row_and_twice_is_the_original() {
+        let input = numbered();
         let mirror = input.mirrored();
         assert_eq!(
             &mirror.depth,
@@ -136,14 +140,7 @@ mod tests {
 
     #[test]
     fn a_translation_moves_every_plane_and_brings_in_bare_table() {
-        let side = 3;
-        let plane = |offset: f32| (0..9).map(|i| i as f32 + offset).collect::<Vec<_>>();
-        let input = NetInput {
-            side,
-            colour: [plane(0.0), plane(10.0), plane(20.0)].concat(),
-            depth: plane(30.0),
-            mask: plane(40.0),
-        };
+        let input = numbered();
         let table = NetInput::table_values();
         let (t, e) = (table[3], table[4]);
         let moved = input.translated(1, -1);
