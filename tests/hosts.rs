@@ -23,6 +23,14 @@ const CONFIG: &str = "configs/stage1.toml";
 /// Tells this process's simulated machines apart from another test process's.
 static NEXT_NET: AtomicU32 = AtomicU32::new(0);
 
+/// How long a host acts before a test cuts or kills it, from its actor's start.
+const HEAD_START: Duration = Duration::from_secs(3);
+
+/// A run's episodes, more than one actor can do in [`HEAD_START`]: a stage-1 episode is a
+/// single grasp, and one actor does up to 25 a second on an idle 2-core machine (after its
+/// start-up), so a run of fewer could end before a test's fault or second host arrives.
+const PAST_A_HEAD_START: u64 = 300;
+
 /// One simulated cluster at a time: each test runs a whole training run, and the slow-link
 /// test compares actors' paces, which other runs on the same cores would blur.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -338,9 +346,17 @@ fn alive(pid: u64) -> bool {
 fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused() {
     let machines = Machines::new(2);
     let run = "across";
+    // Enough episodes that the host joining second still finds the run going.
     let central = machines.central(
         run,
-        &["--actors", "0", "--remote-actors", "2", "--episodes", "60"],
+        &[
+            "--actors",
+            "0",
+            "--remote-actors",
+            "2",
+            "--episodes",
+            &PAST_A_HEAD_START.to_string(),
+        ],
     );
     let secret = machines.secret(run);
 
@@ -434,15 +450,23 @@ fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused()
 fn a_killed_host_leaves_the_run_going_and_a_late_joiner_gets_weights() {
     let machines = Machines::new(2);
     let run = "faults";
+    // The doomed host alone must not finish the run before the late one joins.
     let central = machines.central(
         run,
-        &["--actors", "0", "--remote-actors", "2", "--episodes", "80"],
+        &[
+            "--actors",
+            "0",
+            "--remote-actors",
+            "2",
+            "--episodes",
+            &PAST_A_HEAD_START.to_string(),
+        ],
     );
     let secret = machines.secret(run);
     let doomed = machines.join(0, run, "doomed", &secret).spawn().unwrap();
     // Let it act a while, then kill it and everything it started.
     let actor = first_actor_pid(&machines, run, "doomed");
-    std::thread::sleep(Duration::from_secs(4));
+    std::thread::sleep(HEAD_START);
     // `ip netns exec` runs pushgrasp in its own process: kill the join by its name.
     let _ = Command::new("pkill")
         .args(["-9", "-f", "--", "--host-name doomed"])
@@ -462,7 +486,10 @@ fn a_killed_host_leaves_the_run_going_and_a_late_joiner_gets_weights() {
         "the late host",
     );
     let summary = json(&machines.run_dir(run).join("summary.json"));
-    assert!(u(&summary["buffer"]["episodes"]) >= 80, "{out}");
+    assert!(
+        u(&summary["buffer"]["episodes"]) >= PAST_A_HEAD_START,
+        "{out}"
+    );
     let lost = host(&summary, "doomed");
     assert!(u(&lost["lost_links"]) >= 1, "{lost}");
     assert!(
@@ -649,10 +676,18 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
         return;
     };
     let run = "drop";
-    // Every episode comes from the joined host, so the run cannot end while its link is cut.
+    // Every episode comes from the joined host, which holds its actor back once 8 parcels
+    // wait, so the run cannot end while its link is cut.
     let central = machines.central(
         run,
-        &["--actors", "0", "--remote-actors", "1", "--episodes", "80"],
+        &[
+            "--actors",
+            "0",
+            "--remote-actors",
+            "1",
+            "--episodes",
+            &PAST_A_HEAD_START.to_string(),
+        ],
     );
     let secret = machines.secret(run);
     // The link comes back after 12 s, but Zenoh's reconnection backs off and TCP's SYN
@@ -662,7 +697,7 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
         .spawn()
         .unwrap();
     first_actor_pid(&machines, run, "h0");
-    std::thread::sleep(Duration::from_secs(3));
+    std::thread::sleep(HEAD_START);
     // Longer than both sides' leases (5 s the central host waits, 10 s the host): each ends
     // the session, the central host first; the host reconnects.
     assert!(ip(&["link", "set", outside, "down"]));
