@@ -1,10 +1,14 @@
-//! Batch norm in training as an operation of its own: a quarter of a one-grasp training step
-//! went to burn's generic `batch_norm_train` and its backward, which move every channel to
-//! the front (a transposed copy of the activation) for each of their statistics. On the CPU
-//! backend the statistics, the normalisation and the three gradients are plain loops over
-//! each channel's planes; elsewhere (wgpu) burn's own operations. The module keeps burn's
-//! [`BatchNorm`] (its parameters, running statistics and their update), so checkpoints and
-//! the inference path do not change.
+//! Batch norm and the ReLU after it, in training, as an operation of its own: a quarter of a
+//! one-grasp training step went to burn's generic `batch_norm_train` and its backward, which
+//! move every channel to the front (a transposed copy of the activation) for each of their
+//! statistics, and the ReLU then made and read another copy each way. On the CPU backend
+//! the statistics, the normalisation with its ReLU and the three gradients are plain loops
+//! over each channel's planes; elsewhere (wgpu) burn's own operations. Every batch norm of
+//! the nets is followed by a ReLU. The module keeps burn's [`BatchNorm`] (its parameters,
+//! running statistics and their update), so checkpoints and the inference path do not
+//! change.
+
+use std::mem::MaybeUninit;
 
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -15,7 +19,9 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, TensorMetadata, backend_extension};
 use burn::nn::BatchNorm;
 use burn::prelude::*;
+use burn::tensor::activation::relu;
 use burn::tensor::{DType, Slice};
+
 use rayon::prelude::*;
 
 use crate::gemm_conv::flex_tensor;
@@ -30,9 +36,9 @@ pub trait NormBackend: Backend {
         composed::statistics::<Self>(x)
     }
 
-    /// `(x - mean) / sqrt(variance + epsilon) * gamma + beta` with the batch's `statistics`.
-    /// Its backward differentiates through the statistics as functions of `x`.
-    fn norm_train(
+    /// `relu((x - mean) / sqrt(variance + epsilon) * gamma + beta)` with the batch's
+    /// `statistics`. Its backward differentiates through the statistics as functions of `x`.
+    fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
@@ -42,16 +48,18 @@ pub trait NormBackend: Backend {
         composed::train::<Self>(x, gamma, beta, statistics, epsilon)
     }
 
-    /// The gradients of [`NormBackend::norm_train`]: input, gamma and beta, stacked as the
-    /// input's values followed by gamma's and beta's (`[n x c x ... + 2c]`).
-    fn norm_train_grads(
+    /// The gradients of [`NormBackend::norm_relu_train`], whose `output` it was: input,
+    /// gamma and beta. (Each a tensor of its own: a view into one stacked buffer made every
+    /// consumer of the input's gradient copy it out first.)
+    fn norm_relu_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         statistics: FloatTensor<Self>,
         epsilon: f64,
+        output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-    ) -> FloatTensor<Self> {
-        composed::grads::<Self>(x, gamma, statistics, epsilon, grad)
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        composed::grads::<Self>(x, gamma, statistics, epsilon, output, grad)
     }
 }
 
@@ -95,6 +103,33 @@ fn lane_sum(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> f32) -> f64 {
     lanes.iter().map(|&v| v as f64).sum::<f64>() + tail
 }
 
+/// `len` values made a plane of `m` at a time, in parallel: `fill(p, slots)` writes every
+/// slot of plane `p`. Written once into fresh memory, without zeroing it first (a pass over
+/// megabytes that the values overwrite anyway); `len` must be a multiple of `m`.
+fn planes_from(
+    len: usize,
+    m: usize,
+    fill: impl Fn(usize, &mut [MaybeUninit<f32>]) + Sync,
+) -> Vec<f32> {
+    assert!(
+        m > 0 && len.is_multiple_of(m),
+        "{len} values in planes of {m}"
+    );
+    let mut out: Vec<f32> = Vec::with_capacity(len);
+    out.spare_capacity_mut()
+        .par_chunks_mut(m)
+        .enumerate()
+        .for_each(|(plane, slots)| fill(plane, slots));
+    // SAFETY: `fill` wrote every slot of each of the `len / m` planes.
+    unsafe { out.set_len(len) };
+    out
+}
+
+/// Plane `p` of `m` values of `values`.
+fn plane(values: &[f32], m: usize, p: usize) -> &[f32] {
+    &values[p * m..(p + 1) * m]
+}
+
 /// The channels `c` and the values per plane `m` of an f32 CPU tensor `[n, c, ...]`, or
 /// `None` to fall back to the composed operation.
 fn layout(x: &FloatTensor<Flex>) -> Option<[usize; 2]> {
@@ -121,7 +156,7 @@ impl NormBackend for Flex {
         flex_tensor(out, vec![2, c])
     }
 
-    fn norm_train(
+    fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
@@ -151,41 +186,44 @@ impl NormBackend for Flex {
                 (scale, beta[k] - mean[k] * scale)
             })
             .collect();
-        let mut out = vec![0.0f32; values.len()];
-        out.par_chunks_mut(m)
-            .zip(values.par_chunks(m))
-            .enumerate()
-            .for_each(|(plane, (y, x))| {
-                let (scale, shift) = affine[plane % c];
-                y.iter_mut()
-                    .zip(x)
-                    .for_each(|(y, &x)| *y = x * scale + shift);
-            });
+        let out = planes_from(values.len(), m, |p, slots| {
+            let (scale, shift) = affine[p % c];
+            for (slot, &x) in slots.iter_mut().zip(plane(values, m, p)) {
+                slot.write((x * scale + shift).max(0.0));
+            }
+        });
         flex_tensor(out, shape)
     }
 
-    fn norm_train_grads(
+    fn norm_relu_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         statistics: FloatTensor<Self>,
         epsilon: f64,
+        output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-    ) -> FloatTensor<Self> {
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         let Some([c, m]) = layout(&x) else {
-            return composed::grads::<Self>(x, gamma, statistics, epsilon, grad);
+            return composed::grads::<Self>(x, gamma, statistics, epsilon, output, grad);
         };
-        let (x, gamma, statistics, grad) = (
+        let shape = x.shape().to_vec();
+        let (x, gamma, statistics, output, grad) = (
             x.to_contiguous(),
             gamma.to_contiguous(),
             statistics.to_contiguous(),
+            output.to_contiguous(),
             grad.to_contiguous(),
         );
-        let (values, gamma, statistics, dy): (&[f32], &[f32], &[f32], &[f32]) = (
-            x.storage(),
-            gamma.storage(),
-            statistics.storage(),
-            grad.storage(),
-        );
+        let (values, gamma, statistics): (&[f32], &[f32], &[f32]) =
+            (x.storage(), gamma.storage(), statistics.storage());
+        // The gradient through the ReLU: none where it cut the value to 0.
+        let (y, grad): (&[f32], &[f32]) = (output.storage(), grad.storage());
+        let mut out = planes_from(values.len(), m, |p, slots| {
+            for ((slot, &y), &g) in slots.iter_mut().zip(plane(y, m, p)).zip(plane(grad, m, p)) {
+                slot.write(if y > 0.0 { g } else { 0.0 });
+            }
+        });
+        let dy = out.as_slice();
         let count = (values.len() / c) as f32;
         // Per channel: mean, 1 / std, sum(dy), sum(dy x_hat).
         let sums: Vec<[f32; 4]> = (0..c)
@@ -201,26 +239,21 @@ impl NormBackend for Flex {
                 [mean, inv_std, sum_dy as f32, sum_dy_xhat as f32]
             })
             .collect();
-        let mut out = vec![0.0f32; values.len() + 2 * c];
-        let (x_grad, parameters) = out.split_at_mut(values.len());
-        x_grad
-            .par_chunks_mut(m)
-            .zip(values.par_chunks(m).zip(dy.par_chunks(m)))
+        // The input's gradient, written over the ReLU's (each value read once, first).
+        out.par_chunks_mut(m)
+            .zip(values.par_chunks(m))
             .enumerate()
-            .for_each(|(plane, (g, (x, dy)))| {
+            .for_each(|(plane, (g, x))| {
                 let k = plane % c;
                 let [mean, inv_std, sum_dy, sum_dy_xhat] = sums[k];
                 let factor = gamma[k] * inv_std / count;
-                for ((g, &x), &dy) in g.iter_mut().zip(x).zip(dy) {
+                for (g, &x) in g.iter_mut().zip(x) {
                     let x_hat = (x - mean) * inv_std;
-                    *g = factor * (count * dy - sum_dy - x_hat * sum_dy_xhat);
+                    *g = factor * (count * *g - sum_dy - x_hat * sum_dy_xhat);
                 }
             });
-        for (k, s) in sums.iter().enumerate() {
-            parameters[k] = s[3];
-            parameters[c + k] = s[2];
-        }
-        flex_tensor(out, vec![values.len() + 2 * c])
+        let parameter = |i: usize| flex_tensor(sums.iter().map(|s| s[i]).collect(), vec![c]);
+        (flex_tensor(out, shape), parameter(3), parameter(2))
     }
 }
 
@@ -257,7 +290,8 @@ mod composed {
         })
     }
 
-    /// The normalisation with the batch's `statistics`: burn's batch norm.
+    /// The normalisation with the batch's `statistics` and the ReLU: burn's batch norm and
+    /// ReLU.
     pub fn train<B: Backend>(
         x: FloatTensor<B>,
         gamma: FloatTensor<B>,
@@ -266,7 +300,7 @@ mod composed {
         epsilon: f64,
     ) -> FloatTensor<B> {
         let [mean, variance] = split::<B>(statistics);
-        B::batch_norm(x, gamma, beta, mean, variance, epsilon)
+        B::relu(B::batch_norm(x, gamma, beta, mean, variance, epsilon))
     }
 
     pub fn grads<B: Backend>(
@@ -274,22 +308,13 @@ mod composed {
         gamma: FloatTensor<B>,
         statistics: FloatTensor<B>,
         epsilon: f64,
+        output: FloatTensor<B>,
         grad: FloatTensor<B>,
-    ) -> FloatTensor<B> {
+    ) -> (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>) {
         let [mean, variance] = split::<B>(statistics);
+        let grad = B::relu_backward(output, grad);
         let grads = B::batch_norm_train_backward(x, gamma, mean, variance, epsilon, grad);
-        let flat = |t: FloatTensor<B>| {
-            let n = t.shape().num_elements();
-            B::float_reshape(t, [n].into())
-        };
-        B::float_cat(
-            vec![
-                flat(grads.x_grad),
-                flat(grads.gamma_grad),
-                flat(grads.beta_grad),
-            ],
-            0,
-        )
+        (grads.x_grad, grads.gamma_grad, grads.beta_grad)
     }
 }
 
@@ -318,7 +343,7 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
         }
     }
 
-    fn norm_train(
+    fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
@@ -326,11 +351,18 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
         epsilon: f64,
     ) -> FloatTensor<Self> {
         #[derive(Debug)]
-        struct NormTrain;
+        struct NormReluTrain;
 
-        impl<B: Backend + NormBackend> Backward<B, 3> for NormTrain {
-            /// The input and gamma, the batch statistics, and epsilon.
-            type State = (NodeId, NodeId, B::FloatTensorPrimitive, f64);
+        impl<B: Backend + NormBackend> Backward<B, 3> for NormReluTrain {
+            /// The input and gamma, the batch statistics, epsilon, and the output (where the
+            /// ReLU passed gradient).
+            type State = (
+                NodeId,
+                NodeId,
+                B::FloatTensorPrimitive,
+                f64,
+                B::FloatTensorPrimitive,
+            );
 
             fn backward(
                 self,
@@ -340,29 +372,25 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
             ) {
                 let [node_x, node_gamma, node_beta] = ops.parents;
                 let grad = grads.consume::<B>(&ops.node);
-                let (x_state, gamma_state, statistics, epsilon) = ops.state;
+                let (x_state, gamma_state, statistics, epsilon, output) = ops.state;
                 let x = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(x_state);
                 let gamma =
                     checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(gamma_state);
-                let shape = x.shape();
-                let (len, c) = (shape.num_elements(), shape[1]);
-                let all = B::norm_train_grads(x, gamma, statistics, epsilon, grad);
-                let part = |range: std::ops::Range<usize>| {
-                    B::float_slice(all.clone(), &[Slice::from(range)])
-                };
-                if let Some(node) = node_x {
-                    grads.register::<B>(node.id, B::float_reshape(part(0..len), shape));
-                }
-                if let Some(node) = node_gamma {
-                    grads.register::<B>(node.id, part(len..len + c));
-                }
-                if let Some(node) = node_beta {
-                    grads.register::<B>(node.id, part(len + c..len + 2 * c));
+                let (x_grad, gamma_grad, beta_grad) =
+                    B::norm_relu_train_grads(x, gamma, statistics, epsilon, output, grad);
+                for (node, grad) in [
+                    (node_x, x_grad),
+                    (node_gamma, gamma_grad),
+                    (node_beta, beta_grad),
+                ] {
+                    if let Some(node) = node {
+                        grads.register::<B>(node.id, grad);
+                    }
                 }
             }
         }
 
-        match NormTrain
+        match NormReluTrain
             .prepare::<C>([x.node(), gamma.node(), beta.node()])
             .compute_bound()
             .stateful()
@@ -371,16 +399,17 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
                 let x_state = prep.checkpoint(&x);
                 let gamma_state = prep.checkpoint(&gamma);
                 let statistics = statistics.into_primitive();
-                let output = B::norm_train(
+                let output = B::norm_relu_train(
                     x.into_primitive(),
                     gamma.into_primitive(),
                     beta.into_primitive(),
                     statistics.clone(),
                     epsilon,
                 );
-                prep.finish((x_state, gamma_state, statistics, epsilon), output)
+                let state = (x_state, gamma_state, statistics, epsilon, output.clone());
+                prep.finish(state, output)
             }
-            OpsKind::UnTracked(prep) => prep.finish(B::norm_train(
+            OpsKind::UnTracked(prep) => prep.finish(B::norm_relu_train(
                 x.into_primitive(),
                 gamma.into_primitive(),
                 beta.into_primitive(),
@@ -391,17 +420,18 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
     }
 }
 
-/// `norm` on `x` as burn's [`BatchNorm::forward`] computes it, through [`NormBackend`] when
-/// the layer trains (its running statistics updated the same way).
-pub fn forward(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
+/// `norm` on `x`, then a ReLU, as burn's [`BatchNorm::forward`] and `relu` compute them,
+/// through [`NormBackend`] when the layer trains (its running statistics updated the same
+/// way).
+pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
     if !(x.device().is_autodiff() && norm.training.is_enabled()) {
-        return norm.forward(x);
+        return relu(norm.forward(x));
     }
     let device = x.device();
     let statistics: Tensor<2> = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_statistics(
         x.clone().detach().into_dispatch(),
     ));
-    let output = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_train(
+    let output = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_relu_train(
         x.into_dispatch(),
         norm.gamma.val().into_dispatch(),
         norm.beta.val().into_dispatch(),
@@ -434,6 +464,13 @@ mod tests {
         tensor.into_data().try_to_vec::<f32>().unwrap()
     }
 
+    /// The input's, gamma's and beta's gradients, one after another.
+    fn grad_values(
+        (x, gamma, beta): (FloatTensor<Flex>, FloatTensor<Flex>, FloatTensor<Flex>),
+    ) -> Vec<f32> {
+        [values(x), values(gamma), values(beta)].concat()
+    }
+
     #[test]
     fn the_cpu_loops_equal_the_composed_batch_norm_and_its_gradients() {
         let (n, c, h) = (3, 4, 5);
@@ -447,6 +484,7 @@ mod tests {
         let beta = || flex_tensor(wave(c, 1.3, 1.0), [c]);
         let grad = || flex_tensor(wave(n * c * h * h, 0.11, 1.0), [n, c, h, h]);
         let statistics = || Flex::norm_statistics(x());
+        let output = || composed::train::<Flex>(x(), gamma(), beta(), statistics(), 1e-5);
         assert_close(
             &values(statistics()),
             &values(composed::statistics::<Flex>(x())),
@@ -454,7 +492,13 @@ mod tests {
             "statistics",
         );
         assert_close(
-            &values(Flex::norm_train(x(), gamma(), beta(), statistics(), 1e-5)),
+            &values(Flex::norm_relu_train(
+                x(),
+                gamma(),
+                beta(),
+                statistics(),
+                1e-5,
+            )),
             &values(composed::train::<Flex>(
                 x(),
                 gamma(),
@@ -466,18 +510,20 @@ mod tests {
             "output",
         );
         assert_close(
-            &values(Flex::norm_train_grads(
+            &grad_values(Flex::norm_relu_train_grads(
                 x(),
                 gamma(),
                 statistics(),
                 1e-5,
+                output(),
                 grad(),
             )),
-            &values(composed::grads::<Flex>(
+            &grad_values(composed::grads::<Flex>(
                 x(),
                 gamma(),
                 statistics(),
                 1e-5,
+                output(),
                 grad(),
             )),
             1e-4,

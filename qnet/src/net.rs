@@ -5,14 +5,16 @@
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
-use burn::tensor::activation::relu;
 
 use crate::batch_norm;
 use crate::config::QNetConfig;
 use crate::gemm_conv::{self, Taps};
 
 /// A 3x3 convolution (stride 2 to go down, or stride 1 with a dilation to see further),
-/// batch norm and ReLU; padded so only the stride changes the size.
+/// batch norm and ReLU; padded so only the stride changes the size. The convolution has no
+/// bias, as every one followed by a batch norm here (as in the paper's DenseNet trunks and
+/// its head): the norm subtracts it again, so its gradient is only rounding noise, which
+/// Adam's normalised steps would turn into steps of the full learning rate.
 #[derive(Module, Debug)]
 pub struct ConvBlock {
     pub(crate) conv: Conv2d,
@@ -31,6 +33,7 @@ impl ConvBlock {
     fn new(channels: [usize; 2], stride: usize, dilation: usize, device: &Device) -> Self {
         Self {
             conv: Conv2dConfig::new(channels, [3, 3])
+                .with_bias(false)
                 .with_stride([stride, stride])
                 .with_dilation([dilation, dilation])
                 .with_padding(PaddingConfig2d::Explicit(
@@ -42,7 +45,7 @@ impl ConvBlock {
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(batch_norm::forward(&self.norm, convolve(&self.conv, x)))
+        batch_norm::forward_relu(&self.norm, convolve(&self.conv, x))
     }
 }
 
@@ -176,13 +179,15 @@ impl PrimitiveNet {
         ) = Self::head(config, device);
     }
 
-    /// The paper's head over the trunks' features: BN, 1x1 conv to `head_width`, BN, 1x1
-    /// conv to one Q value.
+    /// The paper's head over the trunks' features: BN, 1x1 conv to `head_width` (no bias:
+    /// a BN follows, as after a [`ConvBlock`]'s), BN, 1x1 conv to one Q value.
     fn head(config: &QNetConfig, device: &Device) -> (BatchNorm, Conv2d, BatchNorm, Conv2d) {
         let features = Self::features(config);
         (
             BatchNormConfig::new(features).init(device),
-            Conv2dConfig::new([features, config.head_width], [1, 1]).init(device),
+            Conv2dConfig::new([features, config.head_width], [1, 1])
+                .with_bias(false)
+                .init(device),
             BatchNormConfig::new(config.head_width).init(device),
             Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device),
         )
@@ -206,14 +211,8 @@ impl PrimitiveNet {
             ],
             1,
         );
-        let x = relu(batch_norm::forward(
-            &self.head_norm_in,
-            self.fused.forward(features),
-        ));
-        let x = relu(batch_norm::forward(
-            &self.head_norm_hidden,
-            convolve(&self.head_hidden, x),
-        ));
+        let x = batch_norm::forward_relu(&self.head_norm_in, self.fused.forward(features));
+        let x = batch_norm::forward_relu(&self.head_norm_hidden, convolve(&self.head_hidden, x));
         convolve(&self.head_out, x)
     }
 }
@@ -221,6 +220,7 @@ impl PrimitiveNet {
 #[cfg(test)]
 mod tests {
     use burn::tensor::Distribution;
+    use burn::tensor::activation::relu;
 
     use super::*;
     use crate::testing::assert_close;
@@ -278,7 +278,10 @@ mod tests {
     fn the_gemm_convolution_and_its_gradients_equal_burns_conv2d() {
         let device = Device::flex().autodiff();
         for (stride, dilation) in [(2, 1), (1, 1), (1, 2)] {
-            let conv = ConvBlock::new([3, 5], stride, dilation, &device).conv;
+            let mut conv = ConvBlock::new([3, 5], stride, dilation, &device).conv;
+            // A block's convolution has none, the head's last has one: test with one.
+            let bias = Tensor::<1>::random([5], Distribution::Default, &device);
+            conv.bias = Some(burn::module::Param::from_tensor(bias));
             let x = Tensor::<4>::random([2, 3, 12, 12], Distribution::Default, &device);
             let ours = output_and_gradients(&conv, &x, conv_as_gemm);
             let burns = output_and_gradients(&conv, &x, |conv, x| conv.forward(x));
@@ -293,19 +296,20 @@ mod tests {
     }
 
     #[test]
-    fn batch_norm_in_training_equals_burns_output_gradients_and_running_statistics() {
+    fn batch_norm_and_relu_in_training_equal_burns_output_gradients_and_running_statistics() {
         let device = Device::flex().autodiff();
         let x = Tensor::<4>::random([3, 5, 7, 7], Distribution::Default, &device).mul_scalar(3.0);
         let run = |ours: bool| {
             let norm = BatchNormConfig::new(5).init(&device);
             let x = x.clone().require_grad();
             let y = if ours {
-                batch_norm::forward(&norm, x.clone())
+                batch_norm::forward_relu(&norm, x.clone())
             } else {
-                norm.forward(x.clone())
+                relu(norm.forward(x.clone()))
             };
-            // A loss whose gradient differs per pixel, so every term of the backward counts.
-            let grads = (y.clone() * y.clone() * x.clone().detach())
+            // A loss whose gradient differs per pixel, so every term of the backward counts,
+            // and is not zero where the ReLU cut the value, so its mask counts too.
+            let grads = (y.clone() * (y.clone() + x.clone().detach()))
                 .sum()
                 .backward();
             let values4 = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();

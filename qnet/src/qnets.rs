@@ -136,7 +136,16 @@ impl QNets {
     pub fn load_bytes(self, bytes: &[u8]) -> Result<Self, QNetError> {
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(bytes.to_vec()))
             .map_err(|e| QNetError::Weights(e.to_string()))?;
-        self.try_load_record(record)
-            .map_err(|e| QNetError::Weights(e.to_string()))
+        self.try_load_record(record).map_err(|e| {
+            let why = e.to_string();
+            // Nets saved before the convolutions ahead of a batch norm lost their biases.
+            let hint = if why.contains("conv.bias") {
+                " (saved by an older pushgrasp, whose convolutions before a batch norm had \
+                 biases; these nets have none: train them again)"
+            } else {
+                ""
+            };
+            QNetError::Weights(format!("{why}{hint}"))
+        })
     }
 }
