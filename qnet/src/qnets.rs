@@ -149,3 +149,29 @@ impl QNets {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use burn::module::Param;
+
+    use super::*;
+
+    #[test]
+    fn weights_with_biases_before_a_batch_norm_are_refused_saying_why() {
+        let (config, device) = (QNetConfig::default(), Device::flex());
+        let mut older = QNets::new(&config, &device);
+        // What an older pushgrasp saved: its blocks' convolutions had biases.
+        let conv = &mut older.grasp.colour.blocks[0].conv;
+        let channels = conv.weight.dims()[0];
+        conv.bias = Some(Param::from_tensor(Tensor::<1>::zeros([channels], &device)));
+        let bytes = older.to_bytes().unwrap();
+        let err = QNets::new(&config, &device)
+            .load_bytes(&bytes)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("grasp.colour.blocks.0.conv.bias") && err.contains("older pushgrasp"),
+            "{err}"
+        );
+    }
+}
