@@ -182,6 +182,23 @@ impl Machines {
             .expect("pushgrasp train starts")
     }
 
+    /// [`Machines::central`] with no actors of its own, awaiting `remote_actors` on joined
+    /// hosts for a run of [`PAST_A_HEAD_START`] episodes.
+    fn central_awaiting(&self, run: &str, remote_actors: u32) -> Child {
+        let (remote, episodes) = (remote_actors.to_string(), PAST_A_HEAD_START.to_string());
+        self.central(
+            run,
+            &[
+                "--actors",
+                "0",
+                "--remote-actors",
+                &remote,
+                "--episodes",
+                &episodes,
+            ],
+        )
+    }
+
     /// `pushgrasp join` on joined host `host`, as `name`, with the run's secret file or
     /// another; it gives up 5 s after the central host is gone.
     fn join(&self, host: usize, run: &str, name: &str, secret: &Path) -> Command {
@@ -347,17 +364,7 @@ fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused()
     let machines = Machines::new(2);
     let run = "across";
     // Enough episodes that the host joining second still finds the run going.
-    let central = machines.central(
-        run,
-        &[
-            "--actors",
-            "0",
-            "--remote-actors",
-            "2",
-            "--episodes",
-            &PAST_A_HEAD_START.to_string(),
-        ],
-    );
+    let central = machines.central_awaiting(run, 2);
     let secret = machines.secret(run);
 
     // A host with another secret is refused before anything of it reaches the run.
@@ -451,17 +458,7 @@ fn a_killed_host_leaves_the_run_going_and_a_late_joiner_gets_weights() {
     let machines = Machines::new(2);
     let run = "faults";
     // The doomed host alone must not finish the run before the late one joins.
-    let central = machines.central(
-        run,
-        &[
-            "--actors",
-            "0",
-            "--remote-actors",
-            "2",
-            "--episodes",
-            &PAST_A_HEAD_START.to_string(),
-        ],
-    );
+    let central = machines.central_awaiting(run, 2);
     let secret = machines.secret(run);
     let doomed = machines.join(0, run, "doomed", &secret).spawn().unwrap();
     // Let it act a while, then kill it and everything it started.
@@ -678,17 +675,7 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
     let run = "drop";
     // Every episode comes from the joined host, which holds its actor back once 8 parcels
     // wait, so the run cannot end while its link is cut.
-    let central = machines.central(
-        run,
-        &[
-            "--actors",
-            "0",
-            "--remote-actors",
-            "1",
-            "--episodes",
-            &PAST_A_HEAD_START.to_string(),
-        ],
-    );
+    let central = machines.central_awaiting(run, 1);
     let secret = machines.secret(run);
     // The link comes back after 12 s, but Zenoh's reconnection backs off and TCP's SYN
     // retries are slow on a loaded machine: give up only long after that.
