@@ -618,3 +618,52 @@ fn a_run_leaves_no_files_behind_even_after_a_kill() {
     assert!(left.is_empty(), "files of run {run} left: {left:#?}");
     assert_run_left_nothing(&run);
 }
+
+#[test]
+fn a_service_left_unsized_by_a_killed_process_is_removed() {
+    const TEST: &str = "a_service_left_unsized_by_a_killed_process_is_removed";
+    if let Some((role, run, _)) = helper_role() {
+        let transport = ShmTransport::new(&run, &role).unwrap();
+        let _steps = transport.publisher(Topic::Steps).unwrap();
+        say_ready();
+        wait_for_stdin_to_close();
+        return;
+    }
+    let run = unique_run("unsized");
+    let mut killed = helper(TEST, "killed", &run, "");
+    killed.wait_ready();
+    let dynamic: Vec<String> = files_named(&iceoryx2_names_of(&run))
+        .into_iter()
+        .filter(|file| file.starts_with("/dev/shm/") && file.ends_with(".dynamic"))
+        .collect();
+    assert_eq!(
+        dynamic.len(),
+        1,
+        "the service's dynamic config: {dynamic:?}"
+    );
+    let dynamic = std::path::PathBuf::from(&dynamic[0]);
+    killed.kill();
+    // What a process killed between creating the service's dynamic config and sizing it
+    // leaves behind: the shared memory at size zero.
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&dynamic)
+        .unwrap()
+        .set_len(0)
+        .unwrap();
+    // Cleaning up after the dead process (every new process does) must finish, removing the
+    // service. Another test's new process may be the one that does it.
+    let (done, cleaned) = std::sync::mpsc::channel();
+    let (cleaning, file) = (run.clone(), dynamic.clone());
+    std::thread::spawn(move || {
+        poll("the unsized service's removal", || {
+            ShmTransport::remove_stale(&cleaning).unwrap();
+            (!file.exists()).then_some(())
+        });
+        let _ = done.send(());
+    });
+    cleaned
+        .recv_timeout(PATIENCE)
+        .expect("cleaning up after the killed process hung on the unsized service");
+    assert_run_left_nothing(&run);
+}
