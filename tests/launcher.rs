@@ -46,6 +46,13 @@ fn roles_listed(run: &Path) -> usize {
         .unwrap_or(0)
 }
 
+/// What an ended run wrote to its stderr.
+fn stderr_of(child: &mut Child) -> String {
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    stderr
+}
+
 fn wait(child: &mut Child, timeout: Duration, what: &str) -> ExitStatus {
     let deadline = Instant::now() + timeout;
     loop {
@@ -71,8 +78,7 @@ fn killed_then_resumed(what: &str, moment: impl Fn(&Path) -> bool) {
     let deadline = Instant::now() + Duration::from_secs(120);
     while !moment(&run) {
         if first.try_wait().unwrap().is_some() && !moment(&run) {
-            let mut stderr = String::new();
-            std::io::Read::read_to_string(first.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+            let stderr = stderr_of(&mut first);
             panic!("{what}: the run ended before the moment: {stderr}");
         }
         assert!(Instant::now() < deadline, "{what}: the moment never came");
@@ -93,8 +99,7 @@ fn killed_then_resumed(what: &str, moment: impl Fn(&Path) -> bool) {
         .unwrap();
     // Well within the 120 s a role is given to stop before it is killed.
     let status = wait(&mut resumed, Duration::from_secs(90), "the resumed run");
-    let mut stderr = String::new();
-    std::io::Read::read_to_string(resumed.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    let stderr = stderr_of(&mut resumed);
     assert!(status.success(), "{what}: --resume failed: {stderr}");
     assert!(
         !stderr.contains("did not stop"),
@@ -160,7 +165,14 @@ fn the_roles_of_a_hung_launcher_stop_by_themselves_and_the_run_resumes() {
         .unwrap();
     let deadline = Instant::now() + Duration::from_secs(120);
     while roles_listed(&run) < 3 {
-        assert!(Instant::now() < deadline, "the roles never started");
+        if launcher.try_wait().unwrap().is_some() {
+            let stderr = stderr_of(&mut launcher);
+            panic!("the launcher ended before its roles started: {stderr}");
+        }
+        if Instant::now() > deadline {
+            let _ = launcher.kill();
+            panic!("the roles never started");
+        }
         std::thread::sleep(Duration::from_millis(50));
     }
     std::thread::sleep(Duration::from_secs(2));

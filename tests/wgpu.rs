@@ -304,13 +304,13 @@ fn a_short_run_trains_its_learner_on_wgpu() {
     );
     assert!(run.join("checkpoint/manifest.toml").exists());
     // The learner's log names the adapter; an actor's names the CPU.
-    let learner_log = mcaplog::read_summary(&run.join("learner.mcap")).unwrap();
+    let learner_log = mcaplog::read_summary(run.join("learner.mcap")).unwrap();
     let device = learner_log
         .metadata("device")
         .expect("the learner's device");
     assert_eq!(device["backend"], "wgpu");
     assert!(!device["adapter"].is_empty());
-    let actor_log = mcaplog::read_summary(&run.join("actor-0-0.mcap")).unwrap();
+    let actor_log = mcaplog::read_summary(run.join("actor-0-0.mcap")).unwrap();
     assert_eq!(actor_log.metadata("device").unwrap()["backend"], "cpu");
     // The checkpoint the wgpu learner wrote acts on the CPU.
     pushgrasp_ok(&[
