@@ -72,6 +72,7 @@ fn samples(input: &NetInput, n: usize) -> Vec<Sample> {
             },
             label: (k % 2) as f32,
             weight: 1.0,
+            succeeded: k % 2 == 1,
         })
         .collect()
 }

@@ -404,6 +404,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             },
             label: 1.0,
             weight: 1.0,
+            succeeded: true,
         };
         let samples = |batch: usize| (0..batch).map(sample).collect::<Vec<_>>();
         let train = train_step_ms(&mut trainer, &samples(1), reps)?;

@@ -41,6 +41,11 @@ pub struct LearningConfig {
     /// another phase of the nets' coarse grid. 0 (the paper) teaches no copy; any other
     /// value doubles an update's items.
     pub translate_samples: usize,
+    /// With an outcome head on the grasp net (`net.grasp_outcome_head`), each grasp's
+    /// cross-entropy between that head's logit at the executed pixel and whether the grasp
+    /// took the goal, times this, is added to the update's loss (weighted per sample as
+    /// the Q loss). Unused without the head, which is how to leave it out.
+    pub outcome_loss_weight: f32,
 }
 
 impl Default for LearningConfig {
@@ -57,6 +62,7 @@ impl Default for LearningConfig {
             publish_average: true,
             mirror_grasps: false,
             translate_samples: 0,
+            outcome_loss_weight: 1.0,
         }
     }
 }
@@ -89,6 +95,7 @@ impl LearningConfig {
         // Values are bounded by the rewards over 1 - gamma.
         ConfigError::check_range("gamma", self.gamma, 0.0..1.0)?;
         ConfigError::check_range("huber_delta", self.huber_delta, above(0.0))?;
+        ConfigError::check_range("outcome_loss_weight", self.outcome_loss_weight, above(0.0))?;
         ConfigError::check_range(
             "polyak_rate",
             self.polyak_rate,

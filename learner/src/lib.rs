@@ -14,4 +14,4 @@ pub use checkpoint::{Checkpoint, Manifest, SavedNets};
 pub use config::{LearningConfig, LrDecay};
 pub use error::LearnerError;
 pub use pretrain::{PretrainConfig, PretrainReport, pretrain};
-pub use trainer::{Sample, StepReport, TrainedNet, Trainer, executed_pixel_loss};
+pub use trainer::{Sample, StepReport, TrainedNet, Trainer, executed_pixel_loss, outcome_loss};

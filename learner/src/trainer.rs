@@ -2,14 +2,16 @@
 //! same pixel at the symmetric rotation k + 8: a parallel jaw is symmetric; with
 //! `mirror_grasps`, also the grasp's mirror image; with `translate_samples`, also the
 //! sample moved a few pixels), the Huber loss against the label weighted by the replay's
-//! importance-sampling weight, and an Adam step on the net being trained. Every other pixel
-//! contributes nothing.
+//! importance-sampling weight, and an Adam step on the net being trained. With an outcome
+//! head on the grasp net, its cross-entropy against the grasp's outcome at the same pixels is
+//! added. Every other pixel contributes nothing.
 
 use burn::module::Module;
 use burn::nn::loss::HuberLossConfig;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
+use burn::tensor::activation::log_sigmoid;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -30,6 +32,9 @@ pub struct Sample {
     pub label: f32,
     /// The replay's importance-sampling weight (1 without prioritisation).
     pub weight: f32,
+    /// Whether the action was a grasp that took the goal (false for a push): what the
+    /// grasp net's outcome head learns.
+    pub succeeded: bool,
 }
 
 /// Which net an update trains; the other is frozen whole (trunks and head).
@@ -198,7 +203,9 @@ impl Trainer {
         let per_sample = items.first().map_or(1, Vec::len);
         let items: Vec<Item> = items.into_iter().flatten().collect();
         let inputs: Vec<(&NetInput, u8)> = items.iter().map(|i| (i.input, i.rotation)).collect();
-        let maps = self.nets.q_maps(primitive, &inputs, &self.geometry)?;
+        let (maps, logits) = self
+            .nets
+            .q_and_outcome_maps(primitive, &inputs, &self.geometry)?;
 
         let repeat = |f: &dyn Fn(&Sample) -> f32| -> Vec<f32> {
             samples
@@ -209,8 +216,13 @@ impl Trainer {
         let pixels: Vec<(usize, usize)> = items.iter().map(|i| i.pixel).collect();
         let labels = repeat(&|s| s.label);
         let weights = repeat(&|s| s.weight);
-        let (loss, q) =
+        let (mut loss, q) =
             executed_pixel_loss(maps, &pixels, &labels, &weights, self.config.huber_delta);
+        if let Some(logits) = logits {
+            let succeeded = repeat(&|s| f32::from(u8::from(s.succeeded)));
+            let outcome = outcome_loss(logits, &pixels, &succeeded, &weights);
+            loss = loss + outcome.mul_scalar(self.config.outcome_loss_weight);
+        }
 
         let q_values = q
             .clone()
@@ -380,17 +392,44 @@ pub fn executed_pixel_loss(
     weights: &[f32],
     huber_delta: f32,
 ) -> (Tensor<1>, Tensor<1>) {
-    let device = maps.device();
+    let q = at_pixels(maps, pixels);
+    let tensor = |values: &[f32]| per_item(values, &q);
+    let huber = HuberLossConfig::new(huber_delta).init();
+    let loss = (huber.forward_no_reduction(q.clone(), tensor(labels)) * tensor(weights)).sum();
+    (loss, q)
+}
+
+/// The weighted cross-entropy of outcome logit maps `[n, side, side]` at one pixel each
+/// against `succeeded` (1 or 0 each), summed.
+pub fn outcome_loss(
+    logits: Tensor<3>,
+    pixels: &[(usize, usize)],
+    succeeded: &[f32],
+    weights: &[f32],
+) -> Tensor<1> {
+    let x = at_pixels(logits, pixels);
+    let y = per_item(succeeded, &x);
+    // -(y log sigmoid(x) + (1 - y) log sigmoid(-x)), without forming sigmoid(x).
+    let entropy = -(log_sigmoid(x.clone()) * y.clone() + log_sigmoid(-x.clone()) * (-y + 1.0));
+    (entropy * per_item(weights, &x)).sum()
+}
+
+/// The values of maps `[n, side, side]` at one pixel each. A one-hot mask picks the pixel,
+/// so no other pixel receives any gradient.
+fn at_pixels(maps: Tensor<3>, pixels: &[(usize, usize)]) -> Tensor<1> {
     let [n, side, _] = maps.dims();
     let mut one_hot = vec![0.0f32; n * side * side];
     for (j, &(row, col)) in pixels.iter().enumerate() {
         one_hot[j * side * side + row * side + col] = 1.0;
     }
-    let one_hot = Tensor::<3>::from_data(TensorData::new(one_hot, [n, side, side]), &device);
-    let q = (maps * one_hot).sum_dim(2).sum_dim(1).reshape([n]);
-    let tensor =
-        |values: &[f32]| Tensor::<1>::from_data(TensorData::new(values.to_vec(), [n]), &device);
-    let huber = HuberLossConfig::new(huber_delta).init();
-    let loss = (huber.forward_no_reduction(q.clone(), tensor(labels)) * tensor(weights)).sum();
-    (loss, q)
+    let one_hot = Tensor::<3>::from_data(TensorData::new(one_hot, [n, side, side]), &maps.device());
+    (maps * one_hot).sum_dim(2).sum_dim(1).reshape([n])
+}
+
+/// One value per item of `like`, as a tensor on its device.
+fn per_item(values: &[f32], like: &Tensor<1>) -> Tensor<1> {
+    Tensor::from_data(
+        TensorData::new(values.to_vec(), like.dims()),
+        &like.device(),
+    )
 }

@@ -7,9 +7,9 @@ use burn::prelude::*;
 use learner::checkpoint::config_hash;
 use learner::{
     Checkpoint, LearningConfig, LrDecay, Manifest, Sample, SavedNets, TrainedNet, Trainer,
-    executed_pixel_loss,
+    executed_pixel_loss, outcome_loss,
 };
-use qnet::{NetInput, QNetConfig, QNets};
+use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use sim::{Action, Camera, Primitive, ROTATIONS, SimConfig, Tabletop};
 
 /// A net's parameters as bytes, to compare.
@@ -57,9 +57,26 @@ fn samples(primitive: Primitive, label: f32) -> Vec<Sample> {
                 },
                 label,
                 weight: 1.0,
+                succeeded: label > 0.0,
             }
         })
         .collect()
+}
+
+/// The gradient of `loss` on `maps`, flattened, after asserting that only the pixels
+/// `executed` (flat indices) receive any.
+fn gradient_at_only(maps: &Tensor<3>, loss: Tensor<1>, executed: &[usize]) -> Vec<f32> {
+    let grads = loss.backward();
+    let grad = maps
+        .grad(&grads)
+        .unwrap()
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+    for (i, g) in grad.iter().enumerate() {
+        assert_eq!(*g != 0.0, executed.contains(&i), "pixel {i}: gradient {g}");
+    }
+    grad
 }
 
 #[test]
@@ -74,21 +91,93 @@ fn the_loss_gives_gradient_to_the_executed_pixels_only() {
         q.into_data().try_to_vec::<f32>().unwrap(),
         vec![values[3 * 16 + 5], values[256 + 10 * 16 + 1]]
     );
-    let grads = loss.backward();
-    let grad = maps
-        .grad(&grads)
-        .unwrap()
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap();
-    for (i, g) in grad.iter().enumerate() {
-        let executed = i == 3 * 16 + 5 || i == 256 + 10 * 16 + 1;
-        assert_eq!(*g != 0.0, executed, "pixel {i}: gradient {g}");
-    }
+    let grad = gradient_at_only(&maps, loss, &[3 * 16 + 5, 256 + 10 * 16 + 1]);
     // d/dq of the Huber loss within delta is (q - y), scaled by the sample's weight (the
     // second label is within 1 of any random value in [0, 1)).
     let want = 0.5 * (values[256 + 10 * 16 + 1] - 0.2);
     assert!((grad[256 + 10 * 16 + 1] - want).abs() < 1e-5);
+}
+
+#[test]
+fn the_outcome_loss_is_the_cross_entropy_at_the_executed_pixels_only() {
+    let device = Device::flex().autodiff();
+    let logits = Tensor::<3>::random([2, 16, 16], burn::tensor::Distribution::Default, &device)
+        .mul_scalar(8.0)
+        .sub_scalar(4.0)
+        .detach()
+        .require_grad();
+    let pixels = [(3, 5), (10, 1)];
+    let (succeeded, weights) = ([1.0, 0.0], [1.0, 0.5]);
+    let loss = outcome_loss(logits.clone(), &pixels, &succeeded, &weights);
+    let values = logits.clone().into_data().try_to_vec::<f32>().unwrap();
+    let at = [3 * 16 + 5, 256 + 10 * 16 + 1];
+    let sigmoid = |x: f32| 1.0 / (1.0 + (-f64::from(x)).exp());
+    let want: f64 = (0..2)
+        .map(|j| {
+            let (p, y) = (sigmoid(values[at[j]]), succeeded[j] as f64);
+            -(y * p.ln() + (1.0 - y) * (1.0 - p).ln()) * weights[j] as f64
+        })
+        .sum();
+    let got = loss.clone().into_data().try_to_vec::<f32>().unwrap()[0];
+    assert!(
+        (f64::from(got) - want).abs() < 1e-5 * want.max(1.0),
+        "{got} vs {want}"
+    );
+    let grad = gradient_at_only(&logits, loss, &at);
+    // d/dx of the cross-entropy is sigmoid(x) - y, scaled by the sample's weight.
+    for j in 0..2 {
+        let want = (sigmoid(values[at[j]]) - succeeded[j] as f64) * weights[j] as f64;
+        assert!((f64::from(grad[at[j]]) - want).abs() < 1e-5, "item {j}");
+    }
+}
+
+#[test]
+fn an_outcome_head_learns_which_grasps_took_the_goal() {
+    let config = QNetConfig {
+        grasp_outcome_head: true,
+        ..QNetConfig::default()
+    };
+    let learning = LearningConfig {
+        learning_rate: 1e-3,
+        ..LearningConfig::default()
+    };
+    let nets = QNets::new(&config, &Device::flex());
+    assert!(nets.grasp.has_outcome() && !nets.push.has_outcome());
+    let mut trainer = Trainer::new(
+        nets,
+        &config,
+        112,
+        &learning,
+        TrainedNet::Grasp,
+        &Device::flex(),
+    );
+    // Half the grasps took the goal; all share one Q label, so only the outcome tells them
+    // apart.
+    let batch: Vec<Sample> = samples(Primitive::Grasp, 1.0)
+        .into_iter()
+        .enumerate()
+        .map(|(k, s)| Sample {
+            succeeded: k % 2 == 0,
+            ..s
+        })
+        .collect();
+    for _ in 0..40 {
+        trainer.train_step(&batch).unwrap();
+    }
+    let items: Vec<(&NetInput, u8)> = batch
+        .iter()
+        .map(|s| (&s.input, s.action.rotation))
+        .collect();
+    let nets = trainer.published_nets();
+    let (_, logits) = nets
+        .q_and_outcome_maps(Primitive::Grasp, &items, &Geometry::new(112, &config))
+        .unwrap();
+    let logits = logits.expect("the grasp net's outcome maps");
+    let logits = logits.into_data().try_to_vec::<f32>().unwrap();
+    for (j, s) in batch.iter().enumerate() {
+        let logit = logits[(j * 112 + s.action.row) * 112 + s.action.col];
+        assert_eq!(logit > 0.0, s.succeeded, "grasp {j}: logit {logit}");
+    }
 }
 
 #[test]
@@ -280,6 +369,7 @@ fn steps_served_by_the_compressing_buffer_train_as_the_raw_steps_do() {
         action: t.action,
         label: 1.5,
         weight,
+        succeeded: t.goal_grasped(),
     };
     let batch: Vec<Sample> = served
         .iter()
@@ -523,7 +613,7 @@ fn a_decaying_step_size_falls_geometrically_to_its_end_and_stays() {
 }
 
 #[test]
-fn a_net_without_context_convolutions_or_fusion_keeps_the_config_hash_it_had_before_them() {
+fn a_net_without_context_convolutions_fusion_or_outcome_head_keeps_its_first_config_hash() {
     // The net config as it was before `context_dilations` existed.
     #[derive(serde::Serialize)]
     struct Before {
@@ -539,8 +629,14 @@ fn a_net_without_context_convolutions_or_fusion_keeps_the_config_hash_it_had_bef
         context_dilations: Vec::new(),
         fuse_context: false,
         head_width: 64,
+        grasp_outcome_head: false,
     };
     assert_eq!(config_hash(&plain), config_hash(&before));
+    let with_outcome = QNetConfig {
+        grasp_outcome_head: true,
+        ..plain.clone()
+    };
+    assert_ne!(config_hash(&with_outcome), config_hash(&before));
     let wide = QNetConfig {
         context_dilations: vec![1, 2],
         ..plain

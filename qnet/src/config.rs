@@ -28,6 +28,13 @@ pub struct QNetConfig {
     pub fuse_context: bool,
     /// Channels of the head's hidden 1x1 convolution (the paper's 64).
     pub head_width: usize,
+    /// Give the grasp net a second 1x1 output beside its Q value: the logit of the grasp
+    /// succeeding, trained on the outcome alone with a cross-entropy loss
+    /// (`learning.outcome_loss_weight`). The policy never reads it; it teaches the features
+    /// a signal free of the Q label's bootstrapped value. (Left out of the serialised
+    /// config when off.)
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub grasp_outcome_head: bool,
 }
 
 impl Default for QNetConfig {
@@ -37,6 +44,7 @@ impl Default for QNetConfig {
             context_dilations: Vec::new(),
             fuse_context: false,
             head_width: 64,
+            grasp_outcome_head: false,
         }
     }
 }

@@ -142,10 +142,14 @@ pub struct PrimitiveNet {
     pub(crate) head_hidden: Conv2d,
     pub(crate) head_norm_hidden: BatchNorm,
     pub(crate) head_out: Conv2d,
+    /// The outcome logit's 1x1 convolution beside `head_out`, when the net has one
+    /// (`QNetConfig::grasp_outcome_head`).
+    pub(crate) outcome_out: Option<Conv2d>,
 }
 
 impl PrimitiveNet {
-    pub fn new(config: &QNetConfig, device: &Device) -> Self {
+    /// A fresh net; `outcome`: with an outcome logit beside its Q value.
+    pub fn new(config: &QNetConfig, outcome: bool, device: &Device) -> Self {
         // Trunks first, then the head: the order the weights are drawn in.
         let colour = Trunk::new(3, config, device);
         let depth = Trunk::new(1, config, device);
@@ -165,6 +169,7 @@ impl PrimitiveNet {
             head_hidden,
             head_norm_hidden,
             head_out,
+            outcome_out: outcome.then(|| Self::head_output(config, device)),
         }
     }
 
@@ -177,6 +182,9 @@ impl PrimitiveNet {
             self.head_norm_hidden,
             self.head_out,
         ) = Self::head(config, device);
+        if self.outcome_out.is_some() {
+            self.outcome_out = Some(Self::head_output(config, device));
+        }
     }
 
     /// The paper's head over the trunks' features: BN, 1x1 conv to `head_width` (no bias:
@@ -189,8 +197,13 @@ impl PrimitiveNet {
                 .with_bias(false)
                 .init(device),
             BatchNormConfig::new(config.head_width).init(device),
-            Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device),
+            Self::head_output(config, device),
         )
+    }
+
+    /// A 1x1 convolution from the head's hidden features to one value a pixel.
+    fn head_output(config: &QNetConfig, device: &Device) -> Conv2d {
+        Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device)
     }
 
     /// The three trunks' last widths side by side (a trunk without blocks passes its
@@ -203,6 +216,37 @@ impl PrimitiveNet {
     /// Low-resolution Q maps `[n, 1, P / d, P / d]` of rotated inputs colour `[n, 3, P, P]`,
     /// depth and mask `[n, 1, P, P]`.
     pub fn forward(&self, colour: Tensor<4>, depth: Tensor<4>, mask: Tensor<4>) -> Tensor<4> {
+        convolve(&self.head_out, self.hidden(colour, depth, mask))
+    }
+
+    /// [`Self::forward`]'s Q maps and, when the net has an outcome head, its logit maps as a
+    /// second channel: `[n, 1 or 2, P / d, P / d]`.
+    pub fn forward_with_outcome(
+        &self,
+        colour: Tensor<4>,
+        depth: Tensor<4>,
+        mask: Tensor<4>,
+    ) -> Tensor<4> {
+        let hidden = self.hidden(colour, depth, mask);
+        match &self.outcome_out {
+            Some(outcome) => Tensor::cat(
+                vec![
+                    convolve(&self.head_out, hidden.clone()),
+                    convolve(outcome, hidden),
+                ],
+                1,
+            ),
+            None => convolve(&self.head_out, hidden),
+        }
+    }
+
+    /// Whether the net has an outcome head.
+    pub fn has_outcome(&self) -> bool {
+        self.outcome_out.is_some()
+    }
+
+    /// The head's hidden features, before its output convolutions.
+    fn hidden(&self, colour: Tensor<4>, depth: Tensor<4>, mask: Tensor<4>) -> Tensor<4> {
         let features = Tensor::cat(
             vec![
                 self.colour.forward(colour),
@@ -212,8 +256,7 @@ impl PrimitiveNet {
             1,
         );
         let x = batch_norm::forward_relu(&self.head_norm_in, self.fused.forward(features));
-        let x = batch_norm::forward_relu(&self.head_norm_hidden, convolve(&self.head_hidden, x));
-        convolve(&self.head_out, x)
+        batch_norm::forward_relu(&self.head_norm_hidden, convolve(&self.head_hidden, x))
     }
 }
 
@@ -259,19 +302,31 @@ mod tests {
             fuse_context: true,
             ..QNetConfig::default()
         };
-        let net = PrimitiveNet::new(&config, &device);
+        let net = PrimitiveNet::new(&config, true, &device);
         let values = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
         let trunk = |net: &PrimitiveNet| {
             [&net.colour, &net.depth, &net.mask, &net.fused]
                 .map(|trunk| values(trunk.blocks[0].conv.weight.val()))
         };
-        let before = (trunk(&net), values(net.head_out.weight.val()));
+        let outputs = |net: &PrimitiveNet| {
+            let outcome = net.outcome_out.as_ref().expect("an outcome head");
+            [&net.head_out, outcome].map(|conv| values(conv.weight.val()))
+        };
+        let before = (trunk(&net), outputs(&net));
         let mut fresh = net.clone();
         fresh.fresh_head(&config, &device);
         assert_eq!(trunk(&fresh), before.0);
-        assert_ne!(values(fresh.head_out.weight.val()), before.1);
+        for (after, before) in outputs(&fresh).iter().zip(&before.1) {
+            assert_ne!(after, before);
+        }
         let x = |channels| Tensor::<4>::ones([1, channels, 16, 16], &device);
         assert_eq!(fresh.forward(x(3), x(1), x(1)).dims(), [1, 1, 4, 4]);
+        let both = fresh.forward_with_outcome(x(3), x(1), x(1));
+        assert_eq!(both.dims(), [1, 2, 4, 4]);
+        assert_eq!(
+            values(both.slice([0..1, 0..1])),
+            values(fresh.forward(x(3), x(1), x(1)))
+        );
     }
 
     #[test]

@@ -30,8 +30,8 @@ impl QNets {
     /// Freshly initialised nets.
     pub fn new(config: &QNetConfig, device: &Device) -> Self {
         Self {
-            push: PrimitiveNet::new(config, device),
-            grasp: PrimitiveNet::new(config, device),
+            push: PrimitiveNet::new(config, false, device),
+            grasp: PrimitiveNet::new(config, config.grasp_outcome_head, device),
         }
     }
 
@@ -67,6 +67,38 @@ impl QNets {
         items: &[(&NetInput, u8)],
         geometry: &Geometry,
     ) -> Result<Tensor<3>, QNetError> {
+        let maps = self.maps(primitive, items, geometry, false)?;
+        let [n, _, side, _] = maps.dims();
+        Ok(maps.reshape([n, side, side]))
+    }
+
+    /// [`Self::q_maps`] and, when the primitive's net has an outcome head, its logit maps
+    /// `[n, side, side]` from the same forward pass.
+    pub fn q_and_outcome_maps(
+        &self,
+        primitive: Primitive,
+        items: &[(&NetInput, u8)],
+        geometry: &Geometry,
+    ) -> Result<(Tensor<3>, Option<Tensor<3>>), QNetError> {
+        let maps = self.maps(primitive, items, geometry, true)?;
+        let [n, channels, side, _] = maps.dims();
+        let channel = |c: usize| {
+            maps.clone()
+                .slice([0..n, c..c + 1])
+                .reshape([n, side, side])
+        };
+        Ok((channel(0), (channels == 2).then(|| channel(1))))
+    }
+
+    /// The maps `[n, channels, side, side]` of one primitive's items: the Q value's, then
+    /// with `outcome` the outcome logit's when the net has that head.
+    fn maps(
+        &self,
+        primitive: Primitive,
+        items: &[(&NetInput, u8)],
+        geometry: &Geometry,
+        outcome: bool,
+    ) -> Result<Tensor<4>, QNetError> {
         let device = self.device();
         let n = items.len();
         let (p, s, side) = (geometry.padded(), geometry.low_side(), geometry.side());
@@ -78,9 +110,14 @@ impl QNets {
         let plane = |values: Vec<f32>, channels: usize| {
             Tensor::<4>::from_data(TensorData::new(values, [n, channels, p, p]), &device)
         };
-        let low = self
-            .net(primitive)
-            .forward(plane(colour, 3), plane(depth, 1), plane(mask, 1));
+        let net = self.net(primitive);
+        let planes = (plane(colour, 3), plane(depth, 1), plane(mask, 1));
+        let low = if outcome {
+            net.forward_with_outcome(planes.0, planes.1, planes.2)
+        } else {
+            net.forward(planes.0, planes.1, planes.2)
+        };
+        let channels = low.dims()[1];
         let rotations: Vec<u8> = items.iter().map(|&(_, k)| k).collect();
         let grid = Tensor::<4>::from_data(
             TensorData::new(geometry.back_grid(&rotations), [n, s, s, 2]),
@@ -99,9 +136,7 @@ impl QNets {
                 .with_output_size([p, p]),
         );
         let o = geometry.offset();
-        Ok(full
-            .slice([0..n, 0..1, o..o + side, o..o + side])
-            .reshape([n, side, side]))
+        Ok(full.slice([0..n, 0..channels, o..o + side, o..o + side]))
     }
 
     /// Q maps of one primitive for all rotations, as the actor's plain arrays.

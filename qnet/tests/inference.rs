@@ -64,9 +64,11 @@ fn the_inference_form_gives_burns_q_maps_for_the_default_net() {
 
 #[test]
 fn the_inference_form_gives_burns_q_maps_for_the_stage_nets() {
-    // configs/stage*.toml: context convolutions in each trunk.
+    // configs/stage*.toml: context convolutions in each trunk; and an outcome head on the
+    // grasp net, which the inference form leaves out.
     let config = QNetConfig {
         context_dilations: vec![1, 2],
+        grasp_outcome_head: true,
         ..QNetConfig::default()
     };
     agrees(&config, 0.004);

@@ -71,6 +71,7 @@ fn sample(transition: &Transition, weight: f32, gamma: f32) -> Sample {
         action: transition.action,
         label,
         weight,
+        succeeded: transition.primitive() == Primitive::Grasp && transition.goal_grasped(),
     }
 }
 
