@@ -57,9 +57,11 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
             .arg(&pretrained)
             .args(["--scenes", "2", "--steps", "2", "--batch", "1"])
     });
-    // The ablation switches, as configs/ablations/ use them, and the first stage's start.
+    // The ablation switches, as configs/ablations/ use them, the first stage's start, and
+    // the learner valuing pushes' next states itself.
     let set = format!(
-        "[set]\npush_reward = \"none\"\nbuffer.relabel = false\ninit_from = {:?}\n",
+        "[set]\npush_reward = \"none\"\nbuffer.relabel = false\ninit_from = {:?}\n\
+         learning.target_update_every = 2\n",
         pretrained
     );
     std::fs::write(&file, format!("{set}{stages}")).unwrap();
@@ -83,6 +85,15 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
             summary["buffer"]["relabelled"], 0,
             "relabelling is off in stage {stage}"
         );
+        // Stage 1 has no pushes; stage 2 learns from nothing else, each push stored with its
+        // next step (an episode ends with a grasp), so each update values several.
+        let learned = summary["learner"]["learned_next_values"].as_u64().unwrap();
+        let updates = summary["learner"]["updates"].as_u64().unwrap();
+        match stage {
+            1 => assert_eq!(learned, 0),
+            2 => assert!(learned >= updates, "{learned} values, {updates} updates"),
+            _ => {}
+        }
         assert!(
             dir.join(format!("stage{stage}.toml")).exists(),
             "the resolved config"

@@ -210,6 +210,7 @@ fn real_step(config: &SimConfig, seed: u64) -> Result<Vec<u8>> {
             reward: 1.0,
             grasped: Some(goal),
             next_value: None,
+            next: None,
         },
         priority: 1.0,
         predicted_q: 0.5,

@@ -227,6 +227,7 @@ fn transition(grid: PixelGrid, i: u64) -> StoredTransition {
         reward: if i.is_multiple_of(3) { 1.0 } else { 0.0 },
         grasped: i.is_multiple_of(3).then_some(1),
         next_value: Some(0.5),
+        next: None,
     })
 }
 

@@ -10,12 +10,16 @@
 //! ([`PushReward::relabelled`]), from change detection around g' recomputed here from the
 //! stored observations (before: the push's own; after: the next step's). Its bootstrap value
 //! is kept as the actor computed it (for the original goal): the buffer cannot evaluate a net.
+//! A learner that values next states itself (`[learning] target_update_every`) values it
+//! for g' from the next step stored with it.
 //!
 //! Pushes after the relabelled grasp, and pushes whose observation does not show g' (its goal
 //! mask would be empty, which the policy never acts on), are not copied.
 //!
 //! An ending episode's observations are packed here, once per step (in parallel): a copy
-//! shares its original's packed observation.
+//! shares its original's packed observation. Each push is stored with its next step's
+//! observation and primitive (shared, not copied), so a learner can value the next state
+//! itself, for a relabelled copy with the copy's goal.
 
 use std::collections::BTreeMap;
 
@@ -25,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
 use sim::{ObjectId, Primitive};
 
-use experience::Transition;
+use experience::{Successor, Transition};
 
 use crate::error::AssembleError;
 use experience::{PackedObservation, StoredTransition};
@@ -136,6 +140,7 @@ impl EpisodeAssembler {
                     goal: copy.goal,
                     reward: copy.reward,
                     obs: original.obs.clone(),
+                    next: original.next.clone(),
                     ..*original
                 },
                 priority: None,
@@ -148,7 +153,8 @@ impl EpisodeAssembler {
     }
 
     /// Closes an episode without relabelling (an actor that died mid-episode) and returns its
-    /// steps in order, so none is lost; an unknown episode gives nothing.
+    /// steps in order, so none is lost; an unknown episode gives nothing. Each push that has
+    /// its next step here gets it as its [`Successor`].
     pub fn flush(&mut self, episode: u64) -> Vec<Ready> {
         let steps: Vec<Pending> = self
             .open
@@ -156,17 +162,25 @@ impl EpisodeAssembler {
             .into_iter()
             .flat_map(|steps| steps.into_values())
             .collect();
-        steps
+        let mut ready: Vec<Ready> = steps
             .into_par_iter()
-            .map(|p| {
-                let obs = PackedObservation::pack(&p.transition.obs);
-                Ready {
-                    transition: p.transition.with_obs(obs),
-                    priority: p.priority,
-                    relabelled: false,
-                }
+            .map(|p| Ready {
+                transition: p.transition.map_obs(|obs| PackedObservation::pack(&obs)),
+                priority: p.priority,
+                relabelled: false,
             })
-            .collect()
+            .collect();
+        for i in 1..ready.len() {
+            let (before, after) = ready.split_at_mut(i);
+            let (t, next) = (&mut before[i - 1].transition, &after[0].transition);
+            if t.primitive() == Primitive::Push && next.step == t.step + 1 {
+                t.next = Some(Successor {
+                    obs: next.obs.clone(),
+                    primitive: next.primitive(),
+                });
+            }
+        }
+        ready
     }
 }
 

@@ -5,7 +5,8 @@
 //! xxh3 hash (u64), all little-endian, then the payload (postcard). The rings' sum trees are
 //! not written: they are their priorities raised to alpha, rebuilt when read. A ring writes
 //! each packed observation once, as it lies in memory (compressed, with its own hash), and its
-//! items name theirs by index, so relabelled copies share it again when read. The hashes turn
+//! items name theirs (and their successors') by index, so relabelled copies share it again
+//! when read; a push's successor held in the other ring is written with both rings. The hashes turn
 //! a flipped byte into a clear error instead of a plausible but wrong buffer: the
 //! observation's own names the damaged record, the payload's the rest.
 
@@ -28,7 +29,7 @@ use experience::PackedObservation;
 
 const MAGIC: &[u8; 8] = b"PGREPLAY";
 /// Bump when the payload's layout changes.
-const VERSION: u32 = 3;
+const VERSION: u32 = 4;
 const HEADER: usize = 8 + 4 + 8 + 8;
 
 /// Counts and hashes what passes through, so the payload streams to disk without a copy.
@@ -174,8 +175,8 @@ fn read(path: &Path) -> Result<ReplayBuffer, SnapshotErrorKind> {
 /// A ring as a snapshot writes it.
 #[derive(Serialize)]
 struct RingOut<'a> {
-    observations: Vec<&'a PackedObservation>,
-    /// Each item with the index of its observation.
+    observations: Vec<PackedObservation>,
+    /// Each item with the indices of its observations.
     items: Vec<Transition<u32>>,
     generations: &'a SharedChunks<u64>,
     priorities: &'a SharedChunks<f64>,
@@ -204,11 +205,12 @@ impl Serialize for Ring {
             .items
             .iter()
             .map(|item| {
-                let i = *index.entry(item.obs.address()).or_insert_with(|| {
-                    observations.push(&item.obs);
-                    observations.len() as u32 - 1
-                });
-                item.clone().with_obs(i)
+                item.clone().map_obs(|obs| {
+                    *index.entry(obs.address()).or_insert_with(|| {
+                        observations.push(obs);
+                        observations.len() as u32 - 1
+                    })
+                })
             })
             .collect();
         RingOut {
@@ -232,14 +234,14 @@ impl<'de> Deserialize<'de> for Ring {
             .items
             .into_iter()
             .map(|item| {
-                let obs = observations.get(item.obs as usize).ok_or_else(|| {
-                    D::Error::custom(format!(
-                        "an item names observation {} of {}",
-                        item.obs,
-                        observations.len()
-                    ))
-                })?;
-                Ok(item.with_obs(obs.clone()))
+                item.try_map_obs(|i| {
+                    observations.get(i as usize).cloned().ok_or_else(|| {
+                        D::Error::custom(format!(
+                            "an item names observation {i} of {}",
+                            observations.len()
+                        ))
+                    })
+                })
             })
             .collect::<Result<_, D::Error>>()?;
         Ok(Ring {
@@ -253,12 +255,20 @@ impl<'de> Deserialize<'de> for Ring {
     }
 }
 
-/// The first damaged observation of `ring`, named by its slot.
+/// The first damaged observation of `ring`, named by its slot: the items' own first, then
+/// their successors' (mostly other items' own, read back as one).
 pub(crate) fn check_ring_observations(ring: &Ring, primitive: Primitive) -> Result<(), String> {
-    ring.items.iter().enumerate().try_for_each(|(slot, item)| {
-        item.obs.check().map_err(|why| {
+    let items = || ring.items.iter().enumerate();
+    let own = items().map(|(slot, item)| (slot, item, &item.obs, ""));
+    let next = items().filter_map(|(slot, item)| {
+        let next = item.next.as_ref()?;
+        Some((slot, item, &next.obs, ", its next step's"))
+    });
+    own.chain(next).try_for_each(|(slot, item, obs, whose)| {
+        obs.check().map_err(|why| {
             format!(
-                "the {primitive:?} ring's observation at slot {slot} (episode {}, step {}): {why}",
+                "the {primitive:?} ring's observation at slot {slot} (episode {}, step {}{whose}): \
+                 {why}",
                 item.episode, item.step
             )
         })

@@ -33,12 +33,13 @@ fn step(episode: u64, step: u32, primitive: Primitive, goal: ObjectId) -> Transi
         reward: 0.0,
         grasped: None,
         next_value: Some(0.5),
+        next: None,
     }
 }
 
 /// A stored transition with its observation decompressed.
 fn unpacked(t: &StoredTransition) -> Transition {
-    t.clone().with_obs(t.obs.unpack().unwrap())
+    t.clone().try_map_obs(|obs| obs.unpack()).unwrap()
 }
 
 fn config(capacity: usize) -> BufferConfig {
@@ -324,11 +325,28 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
     let ready = assembler.end(4, Some(9), DENSE).unwrap();
     assert_eq!(ready.len(), 4 + 3);
     for (i, r) in ready[..4].iter().enumerate() {
+        let Transition { next, .. } = unpacked(&r.transition);
+        let alone = Transition {
+            next: None,
+            ..unpacked(&r.transition)
+        };
         assert_eq!(
-            unpacked(&r.transition),
-            originals[i],
-            "originals are stored unchanged"
+            alone, originals[i],
+            "originals are stored unchanged but for their successor"
         );
+        // Each push carries the next step, shared; the grasp that ends the episode, none.
+        match originals.get(i + 1).filter(|_| i < 3) {
+            Some(following) => {
+                let next = next.expect("a push carries its next step");
+                assert_eq!(
+                    (&next.obs, next.primitive),
+                    (&following.obs, following.primitive())
+                );
+                let packed = &r.transition.next.as_ref().unwrap().obs;
+                assert!(packed.shares(&ready[i + 1].transition.obs));
+            }
+            None => assert_eq!(next, None),
+        }
         assert_eq!(r.priority, Some(i as f64));
         assert!(!r.relabelled);
     }
@@ -344,9 +362,14 @@ fn a_grasp_of_another_object_is_relabelled_with_its_pushes() {
     let expected_push = Transition {
         goal: 9,
         reward: 0.5,
-        ..originals[1].clone()
+        ..unpacked(&ready[1].transition)
     };
     assert_eq!(unpacked(&copies[0].transition), expected_push);
+    assert_eq!(
+        copies[1].transition.next.as_ref().unwrap().primitive,
+        Primitive::Grasp,
+        "the last copied push is followed by the grasp of its goal"
+    );
     // A copy shares its original's packed observation: no bytes are stored twice.
     assert!(copies[0].transition.obs.shares(&ready[1].transition.obs));
     assert!(copies[2].transition.obs.shares(&ready[3].transition.obs));
@@ -710,6 +733,20 @@ fn relabelled_copies_share_their_observation_through_a_snapshot() {
         );
     }
     assert!(!obs(&keys[1]).shares(obs(&keys[2])));
+    // A push's successor in its own ring stays shared; one in the other ring is kept whole.
+    let next = |key: &Key| {
+        &restored
+            .replay()
+            .get(key)
+            .unwrap()
+            .next
+            .as_ref()
+            .unwrap()
+            .obs
+    };
+    assert!(next(&keys[1]).shares(obs(&keys[2])));
+    assert!(next(&keys[4]).shares(obs(&keys[2])));
+    assert_eq!(next(&keys[2]), obs(&keys[3]));
 }
 
 #[test]

@@ -27,15 +27,12 @@ pub struct BatchItem<T = Transition> {
 }
 
 impl BatchItem<StoredTransition> {
-    /// The item with its observation decompressed, as the learner trains on it.
+    /// The item with its observations decompressed, as the learner trains on it.
     pub fn unpack(&self) -> Result<BatchItem, CorruptObservation> {
         Ok(BatchItem {
             key: self.key,
             weight: self.weight,
-            transition: self
-                .transition
-                .clone()
-                .with_obs(self.transition.obs.unpack()?),
+            transition: self.transition.clone().try_map_obs(|obs| obs.unpack())?,
         })
     }
 }

@@ -10,4 +10,4 @@ pub mod transition;
 
 pub use batch::{BatchItem, Key};
 pub use observation::{CorruptObservation, PackedObservation, StoredTransition};
-pub use transition::Transition;
+pub use transition::{Successor, Transition};

@@ -175,10 +175,9 @@ impl PackedObservation {
     }
 }
 
-/// `transition` as the rings hold it: its observation packed, shared by nothing yet.
+/// `transition` as the rings hold it: its observations packed, shared by nothing yet.
 pub fn store(transition: Transition) -> StoredTransition {
-    let obs = PackedObservation::pack(&transition.obs);
-    transition.with_obs(obs)
+    transition.map_obs(|obs| PackedObservation::pack(&obs))
 }
 
 /// The bytes that are compressed: each channel of `obs` as a plane of its own (see the module

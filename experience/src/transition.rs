@@ -1,6 +1,8 @@
 //! One stored step: what the learner needs to train on it (observation, goal, action, label
 //! inputs) and what relabelling needs (the episode, the step index, the object grasped).
 
+use std::convert::Infallible;
+
 use serde::{Deserialize, Serialize};
 use sim::{Action, Heightmaps, ObjectId, Primitive};
 
@@ -29,6 +31,18 @@ pub struct Transition<O = Heightmaps> {
     /// The actor's bootstrap value of the next state, `None` when the scene ended with this
     /// step; the learner turns reward and next value into a label (`policy::label`).
     pub next_value: Option<f32>,
+    /// The episode's next step, which the buffer attaches to each push it stores (`None`
+    /// from actors, for grasps, and where the episode's next step never arrived): what a
+    /// learner that values next states itself needs (`[learning] target_update_every`).
+    pub next: Option<Successor<O>>,
+}
+
+/// The step after a push, as a learner values it: the observation it was chosen on and its
+/// primitive (the value of a state is that of the primitive the policy took there).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Successor<O = Heightmaps> {
+    pub obs: O,
+    pub primitive: Primitive,
 }
 
 impl<O> Transition<O> {
@@ -42,18 +56,37 @@ impl<O> Transition<O> {
         self.grasped == Some(self.goal)
     }
 
-    /// The same step with its observation in another form.
-    pub fn with_obs<P>(self, obs: P) -> Transition<P> {
-        Transition {
+    /// The same step with its observations (its own and its successor's) in another form.
+    pub fn map_obs<P>(self, mut f: impl FnMut(O) -> P) -> Transition<P> {
+        match self.try_map_obs(|obs| Ok::<P, Infallible>(f(obs))) {
+            Ok(mapped) => mapped,
+            Err(never) => match never {},
+        }
+    }
+
+    /// [`Self::map_obs`] with a conversion that can fail.
+    pub fn try_map_obs<P, E>(
+        self,
+        mut f: impl FnMut(O) -> Result<P, E>,
+    ) -> Result<Transition<P>, E> {
+        let next = match self.next {
+            Some(Successor { obs, primitive }) => Some(Successor {
+                obs: f(obs)?,
+                primitive,
+            }),
+            None => None,
+        };
+        Ok(Transition {
             episode: self.episode,
             step: self.step,
             goal: self.goal,
-            obs,
+            obs: f(self.obs)?,
             action: self.action,
             reward: self.reward,
             grasped: self.grasped,
             next_value: self.next_value,
-        }
+            next,
+        })
     }
 }
 
@@ -84,6 +117,7 @@ mod tests {
             reward: 0.0,
             grasped,
             next_value: Some(1.5),
+            next: None,
         }
     }
 

@@ -46,6 +46,13 @@ pub struct LearningConfig {
     /// took the goal, times this, is added to the update's loss (weighted per sample as
     /// the Q loss). Unused without the head, which is how to leave it out.
     pub outcome_loss_weight: f32,
+    /// The learner values a push's next state itself when the push is sampled (Double DQN:
+    /// the best action there chosen by the trained nets and valued by target nets, a copy
+    /// of the trained nets taken every this many updates), instead of using the value its
+    /// actor computed when it acted; a relabelled push is valued for its own goal. Grasps
+    /// keep their actor's value: a grasp ends its episode, and the state after it is the
+    /// next episode's, with another goal. 0 (the paper): every value is the actor's.
+    pub target_update_every: u64,
 }
 
 impl Default for LearningConfig {
@@ -63,6 +70,7 @@ impl Default for LearningConfig {
             mirror_grasps: false,
             translate_samples: 0,
             outcome_loss_weight: 1.0,
+            target_update_every: 0,
         }
     }
 }

@@ -10,6 +10,8 @@ pub enum LearnerError {
     Sim(#[from] sim::SimError),
     #[error("a {0:?} sample reached the trainer while that net is frozen")]
     Frozen(sim::Primitive),
+    #[error("the trained {0:?} net's Q maps are NaN wherever the next state allows it to act")]
+    NoQValue(sim::Primitive),
     #[error("{path}: {message}")]
     Checkpoint { path: PathBuf, message: String },
 }

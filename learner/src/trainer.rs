@@ -21,6 +21,7 @@ use crate::averaging::polyak_step;
 use crate::checkpoint::SavedNets;
 use crate::config::LearningConfig;
 use crate::error::LearnerError;
+use crate::targets::{NextState, double_q_values};
 
 /// One transition to learn from.
 #[derive(Clone, Debug)]
@@ -70,6 +71,10 @@ pub struct Trainer {
     nets: QNets,
     /// The Polyak average of `nets` in inference form, when the config averages.
     average: Option<QNets>,
+    /// The target nets of the learner's bootstrap values, in inference form, when the config
+    /// computes them: `nets` as they were after the last multiple of `target_update_every`
+    /// updates (or when their weights were last loaded).
+    target: Option<QNets>,
     optimiser: ModuleOptimizer,
     geometry: Geometry,
     config: LearningConfig,
@@ -95,9 +100,11 @@ impl Trainer {
             .init();
         let nets = nets.to_device(&device.clone().autodiff()).train();
         let average = (config.polyak_rate < 1.0).then(|| nets.valid());
+        let target = (config.target_update_every > 0).then(|| nets.valid());
         let mut trainer = Self {
             nets,
             average,
+            target,
             optimiser,
             geometry: Geometry::new(side, net_config),
             config: config.clone(),
@@ -244,6 +251,9 @@ impl Trainer {
             let rate = self.config.polyak_rate.max(1.0 / self.updates as f32);
             self.average = Some(polyak_step(average, &self.nets.valid(), rate));
         }
+        if self.target.is_some() && self.updates.is_multiple_of(self.config.target_update_every) {
+            self.target = Some(self.nets.valid());
+        }
 
         // Report each sample's own rotation (the first of its items).
         let predicted: Vec<f32> = q_values.iter().step_by(per_sample).copied().collect();
@@ -285,15 +295,28 @@ impl Trainer {
             .collect()
     }
 
-    /// Starts from other weights (an earlier stage's nets), and restarts any average from
-    /// them.
+    /// Starts from other weights (an earlier stage's nets), and restarts any average and
+    /// the target nets from them.
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
         self.nets = self.nets.clone().load_bytes(bytes)?;
         self.set_trained(self.trained);
         if self.average.is_some() {
             self.average = Some(self.nets.valid());
         }
+        if self.target.is_some() {
+            self.target = Some(self.nets.valid());
+        }
         Ok(())
+    }
+
+    /// The learner's own values of next states ([`crate::targets`]) when the config computes
+    /// them (`target_update_every` > 0), else `None`: the samples' labels then use their
+    /// actors' values.
+    pub fn next_values(&self, states: &[NextState]) -> Result<Option<Vec<f32>>, LearnerError> {
+        let Some(target) = &self.target else {
+            return Ok(None);
+        };
+        double_q_values(&self.nets.valid(), target, states, &self.geometry).map(Some)
     }
 
     /// Continues a run from its checkpoint: the nets it holds, the trained nets when they

@@ -6,8 +6,8 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use learner::checkpoint::config_hash;
 use learner::{
-    Checkpoint, LearningConfig, LrDecay, Manifest, Sample, SavedNets, TrainedNet, Trainer,
-    executed_pixel_loss, outcome_loss,
+    Checkpoint, LearningConfig, LrDecay, Manifest, NextState, Sample, SavedNets, TrainedNet,
+    Trainer, executed_pixel_loss, outcome_loss,
 };
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use sim::{Action, Camera, Primitive, ROTATIONS, SimConfig, Tabletop};
@@ -342,6 +342,7 @@ fn steps_served_by_the_compressing_buffer_train_as_the_raw_steps_do() {
                 reward: 1.0,
                 grasped: Some(goal),
                 next_value: None,
+                next: None,
             }
         })
         .collect();
@@ -571,6 +572,63 @@ fn a_resumed_average_goes_on_from_both_nets_and_the_update_count() {
         })
         .unwrap();
     assert!(!dir.path().join("ckpt/trained.bpk").exists());
+}
+
+#[test]
+fn the_learners_next_values_are_chosen_by_the_trained_nets_and_valued_by_the_target_nets() {
+    let nets = QNets::new(&QNetConfig::default(), &Device::flex());
+    let learning = |every: u64| LearningConfig {
+        learning_rate: 1e-2,
+        target_update_every: every,
+        ..LearningConfig::default()
+    };
+    let mut trainer = trainer_from(nets.clone(), learning(3), TrainedNet::Push);
+    let first = samples(Primitive::Push, 1.0);
+    // Where pushes may start: the left half of the table.
+    let allowed: Vec<bool> = (0..112 * 112).map(|i| i % 112 < 56).collect();
+    let state = NextState {
+        input: first[0].input.clone(),
+        primitive: Primitive::Push,
+        allowed: allowed.clone(),
+    };
+    let geometry = trainer.geometry().clone();
+    let best = |nets: &QNets| {
+        nets.all_rotations(Primitive::Push, &state.input, &geometry)
+            .unwrap()
+            .best_where(&allowed)
+            .unwrap()
+    };
+    let value = |trainer: &Trainer| trainer.next_values(std::slice::from_ref(&state)).unwrap();
+
+    // Two updates: the target nets are still the first nets.
+    for _ in 0..2 {
+        trainer.train_step(&first).unwrap();
+    }
+    let (trained_q, rotation, row, col) = best(&trainer.published_nets());
+    let first_nets = nets.valid();
+    let target_q = first_nets
+        .all_rotations(Primitive::Push, &state.input, &geometry)
+        .unwrap()
+        .get(rotation, row, col);
+    let got = value(&trainer).expect("the config values next states")[0];
+    assert!(
+        (got - target_q).abs() < 1e-5,
+        "{got} vs the target's {target_q}"
+    );
+    assert!(
+        (got - trained_q).abs() > 1e-3,
+        "the trained nets' own value {trained_q} is not the target's {got}"
+    );
+
+    // The third update refreshes the target nets: both roles are the trained nets now.
+    trainer.train_step(&first).unwrap();
+    let (trained_q, ..) = best(&trainer.published_nets());
+    let got = value(&trainer).unwrap()[0];
+    assert!((got - trained_q).abs() < 1e-5, "{got} vs {trained_q}");
+
+    // Without target nets the learner values nothing: labels keep their actors' values.
+    let plain = trainer_from(nets, learning(0), TrainedNet::Push);
+    assert_eq!(value(&plain), None);
 }
 
 #[test]

@@ -2,7 +2,7 @@
 //! own forward on any other device (a GPU's).
 
 use burn::prelude::*;
-use sim::Primitive;
+use sim::{Primitive, ROTATIONS};
 
 use policy::QMaps;
 
@@ -42,4 +42,30 @@ impl ActingNets {
             ActingNets::Device(nets) => nets.all_rotations(primitive, input, geometry),
         }
     }
+
+    /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
+    pub fn rotations(
+        &self,
+        primitive: Primitive,
+        input: &NetInput,
+        rotations: &[u8],
+        geometry: &Geometry,
+    ) -> Result<Vec<f32>, QNetError> {
+        match self {
+            ActingNets::Cpu(inference) => {
+                inference.rotations(primitive, input, rotations, geometry)
+            }
+            ActingNets::Device(nets) => nets.rotations(primitive, input, rotations, geometry),
+        }
+    }
+}
+
+/// The maps of every rotation as [`QMaps`], from a function giving the maps of the rotations
+/// asked for.
+pub(crate) fn every_rotation(
+    geometry: &Geometry,
+    maps: impl FnOnce(&[u8]) -> Result<Vec<f32>, QNetError>,
+) -> Result<QMaps, QNetError> {
+    let rotations: Vec<u8> = (0..ROTATIONS).collect();
+    Ok(QMaps::new(ROTATIONS, geometry.side(), maps(&rotations)?)?)
 }

@@ -9,10 +9,11 @@ use burn::tensor::module::interpolate;
 use burn::tensor::ops::{
     GridSampleOptions, GridSamplePaddingMode, InterpolateMode, InterpolateOptions,
 };
-use sim::{Primitive, ROTATIONS};
+use sim::Primitive;
 
 use policy::QMaps;
 
+use crate::acting::every_rotation;
 use crate::config::QNetConfig;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
@@ -146,13 +147,25 @@ impl QNets {
         input: &NetInput,
         geometry: &Geometry,
     ) -> Result<QMaps, QNetError> {
-        let items: Vec<(&NetInput, u8)> = (0..ROTATIONS).map(|k| (input, k)).collect();
+        every_rotation(geometry, |rotations| {
+            self.rotations(primitive, input, rotations, geometry)
+        })
+    }
+
+    /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
+    pub fn rotations(
+        &self,
+        primitive: Primitive,
+        input: &NetInput,
+        rotations: &[u8],
+        geometry: &Geometry,
+    ) -> Result<Vec<f32>, QNetError> {
+        let items: Vec<(&NetInput, u8)> = rotations.iter().map(|&k| (input, k)).collect();
         let maps = self.q_maps(primitive, &items, geometry)?;
-        let values = maps
+        Ok(maps
             .into_data()
             .try_to_vec::<f32>()
-            .expect("Q maps are f32");
-        Ok(QMaps::new(ROTATIONS, geometry.side(), values)?)
+            .expect("Q maps are f32"))
     }
 
     /// The weights of both nets as bytes (burn's burnpack format), for checkpoints and for

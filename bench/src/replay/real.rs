@@ -166,6 +166,7 @@ fn grasp(episode: u64, step: usize, scenes: &[Heightmaps]) -> Transition {
         reward: if last { 1.0 } else { 0.0 },
         grasped: last.then_some(1),
         next_value: (!last).then_some(0.5),
+        next: None,
     }
 }
 
@@ -203,7 +204,7 @@ fn learner_steps(buffer: &mut ReplayBuffer, scenes: &[Heightmaps]) -> Result<[f6
                     weight: item.weight,
                     transition: item
                         .transition
-                        .with_obs(scenes[item.key.slot as usize % scenes.len()].clone()),
+                        .map_obs(|_| scenes[item.key.slot as usize % scenes.len()].clone()),
                 })
                 .collect();
             black_box(send_and_receive(raw, &mut bytes)?);

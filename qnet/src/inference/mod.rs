@@ -16,10 +16,11 @@ use std::cell::RefCell;
 
 use burn::nn::BatchNorm;
 use rayon::prelude::*;
-use sim::{Primitive, ROTATIONS};
+use sim::Primitive;
 
 use policy::QMaps;
 
+use crate::acting::every_rotation;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
 use crate::input::NetInput;
@@ -90,27 +91,42 @@ impl Inference {
         input: &NetInput,
         geometry: &Geometry,
     ) -> Result<QMaps, QNetError> {
-        geometry.check(input, 0)?;
+        every_rotation(geometry, |rotations| {
+            self.rotations(primitive, input, rotations, geometry)
+        })
+    }
+
+    /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
+    pub fn rotations(
+        &self,
+        primitive: Primitive,
+        input: &NetInput,
+        rotations: &[u8],
+        geometry: &Geometry,
+    ) -> Result<Vec<f32>, QNetError> {
+        for &k in rotations {
+            geometry.check(input, k)?;
+        }
         let net = self.net(primitive);
         let side = geometry.side();
-        let mut values = vec![0.0; ROTATIONS as usize * side * side];
+        let mut values = vec![0.0; rotations.len() * side * side];
         values
             .par_chunks_mut(side * side)
-            .enumerate()
-            .for_each(|(k, map)| {
+            .zip(rotations)
+            .for_each(|(map, &k)| {
                 WORKSPACE.with_borrow_mut(|ws| {
                     ws.planes.iter_mut().for_each(Vec::clear);
                     let [colour, depth, mask] = &mut ws.planes;
-                    geometry.rotate_input(input, k as u8, [colour, depth, mask]);
+                    geometry.rotate_input(input, k, [colour, depth, mask]);
                     let mut low = std::mem::take(&mut ws.low);
                     let planes = std::mem::take(&mut ws.planes);
                     net.forward(&planes, geometry.padded(), ws, &mut low);
                     ws.planes = planes;
-                    rotate_back(&low, k as u8, geometry, &mut ws.back, map);
+                    rotate_back(&low, k, geometry, &mut ws.back, map);
                     ws.low = low;
                 });
             });
-        Ok(QMaps::new(ROTATIONS, side, values)?)
+        Ok(values)
     }
 
     /// The low-resolution Q maps (`n x low_side^2`) of `n` inputs already padded and

@@ -281,6 +281,7 @@ impl<'a> Play<'a> {
                 reward: 0.0,
                 grasped: outcome.grasped,
                 next_value: None,
+                next: None,
             };
             obs = self.camera.render(&self.tabletop);
             if decision.action.primitive == Primitive::Push {
@@ -367,6 +368,7 @@ impl<'a> Play<'a> {
                 reward: 0.0,
                 grasped: outcome.grasped,
                 next_value: None,
+                next: None,
             };
             report.trials += 1;
             let unlabelled = Unlabelled::grasp(

@@ -10,11 +10,11 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use experience::Transition;
+use experience::{BatchItem, Transition};
 use learner::checkpoint::config_hash;
-use learner::{Checkpoint, Manifest, Sample, SavedNets, Trainer};
+use learner::{Checkpoint, Manifest, NextState, Sample, SavedNets, Trainer};
 use mcaplog::{LogLevel, RunLog};
-use policy::{grasp_label, push_label};
+use policy::{grasp_label, grasp_region, push_label, valid_push_starts};
 use qnet::{NetInput, QNets};
 use serde::{Deserialize, Serialize};
 use sim::Primitive;
@@ -53,18 +53,23 @@ pub struct LearnerReport {
     /// taken again (its weight versions were published; these updates are not in the nets).
     #[serde(default)]
     pub redone_updates: u64,
+    /// Next states this process valued itself (`learning.target_update_every`), not taking
+    /// their actors' values.
+    #[serde(default)]
+    pub learned_next_values: u64,
 }
 
-/// The training sample of a stored transition: its label from reward and bootstrap value.
-fn sample(transition: &Transition, weight: f32, gamma: f32) -> Sample {
+/// The training sample of a stored transition: its label from reward and `next_value`, the
+/// bootstrap value of its next state (`None` when the scene ended with it).
+fn sample(transition: &Transition, next_value: Option<f32>, weight: f32, gamma: f32) -> Sample {
     let label = match transition.primitive() {
         Primitive::Grasp => grasp_label(
             transition.reward,
             transition.goal_grasped(),
-            transition.next_value,
+            next_value,
             gamma,
         ),
-        Primitive::Push => push_label(transition.reward, transition.next_value, gamma),
+        Primitive::Push => push_label(transition.reward, next_value, gamma),
     };
     Sample {
         input: NetInput::encode(&transition.obs, transition.goal),
@@ -328,10 +333,11 @@ impl<'a> LearnerRole<'a> {
             self.trainer.set_trained(net);
         }
         let gamma = self.config.learning.gamma;
-        let samples: Vec<Sample> = buffer::unpack(&batch.items)
-            .context("a batch from the buffer")?
+        let items = buffer::unpack(&batch.items).context("a batch from the buffer")?;
+        let samples: Vec<Sample> = items
             .iter()
-            .map(|item| sample(&item.transition, item.weight, gamma))
+            .zip(self.next_values(&items)?)
+            .map(|(item, next_value)| sample(&item.transition, next_value, item.weight, gamma))
             .collect();
         let step = self.trainer.train_step(&samples)?;
         self.report.last_loss = Some(step.loss);
@@ -355,6 +361,46 @@ impl<'a> LearnerRole<'a> {
                 .map(|(item, td)| (item.key, f64::from(*td)))
                 .collect(),
         })
+    }
+
+    /// Each item's bootstrap value of its next state: the learner's own for a push stored with
+    /// its next step when the config computes them (`learning.target_update_every`), else
+    /// the one its actor computed.
+    fn next_values(&mut self, items: &[BatchItem]) -> Result<Vec<Option<f32>>> {
+        let mut values: Vec<Option<f32>> = items.iter().map(|i| i.transition.next_value).collect();
+        if self.config.learning.target_update_every == 0 {
+            return Ok(values);
+        }
+        let (indices, states): (Vec<usize>, Vec<NextState>) = items
+            .iter()
+            .enumerate()
+            .filter_map(|(i, item)| {
+                let t = &item.transition;
+                let next = t
+                    .next
+                    .as_ref()
+                    .filter(|_| t.primitive() == Primitive::Push)?;
+                let allowed = match next.primitive {
+                    Primitive::Grasp => {
+                        grasp_region(&next.obs, t.goal, self.config.policy.grasp_margin)
+                    }
+                    Primitive::Push => valid_push_starts(&next.obs),
+                };
+                let state = NextState {
+                    input: NetInput::encode(&next.obs, t.goal),
+                    primitive: next.primitive,
+                    allowed,
+                };
+                Some((i, state))
+            })
+            .unzip();
+        if let Some(learned) = self.trainer.next_values(&states)? {
+            self.report.learned_next_values += learned.len() as u64;
+            for (i, value) in indices.into_iter().zip(learned) {
+                values[i] = Some(value);
+            }
+        }
+        Ok(values)
     }
 
     fn status(&self) -> Message {
