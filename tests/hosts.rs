@@ -266,14 +266,28 @@ impl Drop for Machines {
                 ip(&["netns", "del", name]);
             }
         }
-        // What killed processes of these hosts could not remove, and iceoryx2's own files.
+        // What killed processes of these hosts could not remove, and iceoryx2's own files:
+        // shared memory in /dev/shm, services, node monitors and node directories (those
+        // holding the host's node details) in /tmp/iceoryx2 (the transport keeps
+        // iceoryx2's default places), each named with its host's prefix.
+        let entries = |dir: &str| -> Vec<std::fs::DirEntry> {
+            std::fs::read_dir(dir)
+                .map(|entries| entries.flatten().collect())
+                .unwrap_or_default()
+        };
         for host in std::iter::once(None).chain((0..self.hosts.len()).map(Some)) {
             let prefix = self.prefix(host);
-            if let Ok(entries) = std::fs::read_dir("/dev/shm") {
-                for entry in entries.flatten() {
-                    if entry.file_name().to_string_lossy().starts_with(&prefix) {
-                        let _ = std::fs::remove_file(entry.path());
-                    }
+            let named = |entry: &std::fs::DirEntry| {
+                entry.file_name().to_string_lossy().starts_with(&prefix)
+            };
+            let files = ["/dev/shm", "/tmp/iceoryx2/services", "/tmp/iceoryx2/nodes"];
+            for entry in files.into_iter().flat_map(entries).filter(named) {
+                let _ = std::fs::remove_file(entry.path());
+            }
+            let details = format!("{prefix}node.details");
+            for node in entries("/tmp/iceoryx2/nodes") {
+                if node.path().join(&details).exists() {
+                    let _ = std::fs::remove_dir_all(node.path());
                 }
             }
         }
