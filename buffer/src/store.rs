@@ -49,6 +49,10 @@ pub struct Serving {
     /// inserts nobody samples would hold the actors back for nothing (in stage 2 a grasp net
     /// sure of the goal grasps without pushing, and the push learner would wait forever).
     pub sampled: Vec<Primitive>,
+    /// Whether the learner values pushes' next states itself (`[learning]
+    /// target_update_every`): only then are pushes stored with their next step, so that
+    /// otherwise no batch carries, and no learner unpacks, an observation nobody reads.
+    pub successors: bool,
 }
 
 impl ReplayBuffer {
@@ -118,7 +122,14 @@ impl ReplayBuffer {
                 self.limiter.on_insert(1);
             }
         }
-        let items = ready.into_iter().map(|r| (r.transition, r.priority));
+        let successors = self.serving.successors;
+        let items = ready.into_iter().map(|r| {
+            let mut transition = r.transition;
+            if !successors {
+                transition.next = None;
+            }
+            (transition, r.priority)
+        });
         self.replay
             .insert_many(items.collect())
             .expect("priorities were checked when the step arrived")

@@ -285,11 +285,13 @@ fn scene(present: bool, boxed: bool) -> Heightmaps {
 /// The paper's relabelling, with its dense push reward.
 const DENSE: Option<PushReward> = Some(PushReward::Dense);
 
-/// A run with the dense push reward whose learner samples both primitives.
+/// A run with the dense push reward whose learner samples both primitives and values
+/// pushes' next states itself.
 fn serving_both() -> Serving {
     Serving {
         push_reward: PushReward::Dense,
         sampled: vec![Primitive::Push, Primitive::Grasp],
+        successors: true,
     }
 }
 
@@ -561,6 +563,7 @@ fn only_inserts_of_sampled_primitives_count_toward_the_rate_limit() {
         Serving {
             push_reward: PushReward::Dense,
             sampled: vec![Primitive::Push],
+            successors: false,
         },
     )
     .unwrap();
@@ -711,6 +714,25 @@ fn relabelled_buffer() -> (ReplayBuffer, Vec<Key>) {
     }
     let keys = buffer.end_episode(0, Some(9)).unwrap();
     (buffer, keys)
+}
+
+#[test]
+fn pushes_are_stored_without_their_next_step_for_a_learner_that_does_not_value_it() {
+    let serving = Serving {
+        successors: false,
+        ..serving_both()
+    };
+    let mut buffer = ReplayBuffer::new(config(16), serving).unwrap();
+    for t in non_goal_episode(0) {
+        buffer.add_step(t, None).unwrap();
+    }
+    let keys = buffer.end_episode(0, Some(9)).unwrap();
+    assert_eq!(keys.len(), 7);
+    for key in &keys {
+        assert_eq!(buffer.replay().get(key).unwrap().next, None);
+    }
+    let (with, keys) = relabelled_buffer();
+    assert!(with.replay().get(&keys[0]).unwrap().next.is_some());
 }
 
 #[test]

@@ -349,6 +349,7 @@ fn steps_served_by_the_compressing_buffer_train_as_the_raw_steps_do() {
     let serving = Serving {
         push_reward: policy::PushReward::Change,
         sampled: vec![Primitive::Grasp],
+        successors: false,
     };
     let config = BufferConfig {
         min_size_to_sample: 1,

@@ -81,6 +81,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         Serving {
             push_reward: policy::PushReward::Change,
             sampled: vec![Primitive::Grasp],
+            successors: false,
         },
     )?;
     let mut keys = Vec::with_capacity(steps);

@@ -120,6 +120,7 @@ impl BufferRole {
                 .iter()
                 .map(|n| n.primitive())
                 .collect(),
+            successors: config.learning.target_update_every > 0,
         };
         Ok(Self {
             replay: ReplayBuffer::new(config.buffer.clone(), serving)?,
