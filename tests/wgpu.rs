@@ -40,15 +40,20 @@ fn gpu() -> Device {
     open.device
 }
 
-/// The stage configs' nets (context convolutions) and the library's default shape.
-fn net_shapes() -> [QNetConfig; 2] {
+/// The stage configs' nets (context convolutions), the library's default shape, and the
+/// stage nets rotation-equivariant (four passes, each scoring four angles).
+fn net_shapes() -> [QNetConfig; 3] {
     let stage = QNetConfig {
         trunk_widths: vec![8, 16],
         context_dilations: vec![1, 2],
         head_width: 64,
         ..QNetConfig::default()
     };
-    [QNetConfig::default(), stage]
+    let equivariant = QNetConfig {
+        rotation_equivariant: true,
+        ..stage.clone()
+    };
+    [QNetConfig::default(), stage, equivariant]
 }
 
 fn scene_input(goal_index: usize) -> NetInput {
@@ -157,7 +162,7 @@ fn one_training_step_gives_the_cpus_loss_and_weights() {
     let _turn = device_turn();
     let gpu = gpu();
     let input = scene_input(1);
-    let [_, net] = net_shapes();
+    let [_, net, _] = net_shapes();
     let start = trained_on_cpu(&net, &input);
     let batch = samples(&input, 4);
     let mut on_cpu = trainer(start.clone(), &net, input.side, &Device::flex());
@@ -216,7 +221,7 @@ fn a_checkpoint_saved_on_one_backend_loads_on_the_other() {
     let _turn = device_turn();
     let gpu = gpu();
     let input = scene_input(2);
-    let [_, net] = net_shapes();
+    let [_, net, _] = net_shapes();
     let dir = tempfile::tempdir().unwrap();
     let save = |trainer: &Trainer, name: &str| -> SavedNets {
         let (weights, trained) = trainer.checkpoint_weights().unwrap();

@@ -308,6 +308,10 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         serde_json::to_value(&net.context_dilations)?,
     );
     figures.insert("fuse_context".into(), net.fuse_context.into());
+    figures.insert(
+        "rotation_equivariant".into(),
+        net.rotation_equivariant.into(),
+    );
     let python = args.python.clone().unwrap_or_else(python::default_python);
     let (mut peer_figures, mut peer_missing) = (serde_json::Map::new(), None);
     for &side in &args.sides {
@@ -328,6 +332,8 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         let nets = trainer.published_nets();
         let geometry = trainer.geometry().clone();
         let acting = ActingNets::new(&nets)?;
+        // The passes over rotated inputs that the 16 rotations take.
+        let passes = ROTATIONS as usize / net.group();
         let both = |run: &dyn Fn(Primitive)| {
             median(
                 (0..reps)
@@ -358,7 +364,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         if let ActingNets::Cpu(inference) = &acting {
             // The convolutions alone, on inputs rotated beforehand: what the peer runs.
             let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
-            for k in 0..ROTATIONS {
+            for k in 0..passes as u8 {
                 geometry.rotate_input(&input, k, [&mut colour, &mut depth, &mut mask]);
             }
             let rotated = [colour.as_slice(), &depth, &mask];
@@ -373,7 +379,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
                 let run = peer::PeerRun {
                     nets: &nets,
                     rotated,
-                    n: ROTATIONS as usize,
+                    n: passes,
                     padded: geometry.padded(),
                     ours: [&ours[0], &ours[1]],
                     reps,
@@ -429,11 +435,13 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             put("cpu_batch_train_step_ms", cpu_batch_train);
             put("batch_train_speedup_vs_cpu", cpu_batch_train / batch_train);
         }
-        let per_rotation = net.flops_per_rotation(geometry.padded());
-        let gflop_inference = 2.0 * 16.0 * per_rotation / 1e9;
-        // A grasp trains its rotation and the symmetric one; backward costs about twice the
+        let per_pass = net.flops_per_pass(geometry.padded());
+        let gflop_inference = 2.0 * passes as f64 * per_pass / 1e9;
+        // A grasp trains its rotation and the symmetric one (one pass of an equivariant net,
+        // whose passes score angles a quarter turn apart); backward costs about twice the
         // forward.
-        let gflop_batch_train = 3.0 * 8.0 * 2.0 * per_rotation / 1e9;
+        let passes_per_grasp = if net.group() > 1 { 1.0 } else { 2.0 };
+        let gflop_batch_train = 3.0 * 8.0 * passes_per_grasp * per_pass / 1e9;
         put("train_step_ms", train);
         put("batch_train_step_ms", batch_train);
         put("gflop_per_inference", gflop_inference);

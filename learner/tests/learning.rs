@@ -689,6 +689,7 @@ fn a_net_without_context_convolutions_fusion_or_outcome_head_keeps_its_first_con
         fuse_context: false,
         head_width: 64,
         grasp_outcome_head: false,
+        rotation_equivariant: false,
     };
     assert_eq!(config_hash(&plain), config_hash(&before));
     let with_outcome = QNetConfig {
@@ -706,4 +707,9 @@ fn a_net_without_context_convolutions_fusion_or_outcome_head_keeps_its_first_con
         ..wide.clone()
     };
     assert_ne!(config_hash(&fused), config_hash(&wide));
+    let equivariant = QNetConfig {
+        rotation_equivariant: true,
+        ..wide.clone()
+    };
+    assert_ne!(config_hash(&equivariant), config_hash(&wide));
 }

@@ -35,6 +35,14 @@ pub struct QNetConfig {
     /// config when off.)
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub grasp_outcome_head: bool,
+    /// Tie every convolution's weights across the four quarter turns (group convolutions,
+    /// [`crate::equivariant`]): each width is then `width / 4` fields of 4 channels, one per
+    /// quarter turn, and one pass over an input rotated by -theta scores the actions at
+    /// theta, theta + 90, theta + 180 and theta + 270 degrees, so the 16 rotations take 4
+    /// passes and what is learnt at one angle holds at the three others. (Left out of the
+    /// serialised config when off.)
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub rotation_equivariant: bool,
 }
 
 impl Default for QNetConfig {
@@ -45,6 +53,7 @@ impl Default for QNetConfig {
             fuse_context: false,
             head_width: 64,
             grasp_outcome_head: false,
+            rotation_equivariant: false,
         }
     }
 }
@@ -73,7 +82,28 @@ impl QNetConfig {
         if self.head_width == 0 {
             return Err(ConfigError::new("head_width", "must be at least 1"));
         }
+        let group = self.group();
+        if group > 1 {
+            let widths = self.trunk_widths.iter().chain([&self.head_width]);
+            if widths.clone().any(|width| width % group != 0) {
+                let why = format!(
+                    "true needs every trunk width and the head width to be a multiple of \
+                     {group} (fields of one channel a quarter turn), not {:?} and {}",
+                    self.trunk_widths, self.head_width
+                );
+                return Err(ConfigError::new("rotation_equivariant", why));
+            }
+        }
         Ok(())
+    }
+
+    /// Channels a field of the nets' features: the rotations each pass scores at once.
+    pub fn group(&self) -> usize {
+        if self.rotation_equivariant {
+            crate::equivariant::QUARTER_TURNS
+        } else {
+            1
+        }
     }
 
     /// How much the trunks shrink the padded input.
@@ -81,9 +111,10 @@ impl QNetConfig {
         1 << self.trunk_widths.len()
     }
 
-    /// Multiply-adds x 2 of the convolutions of one net on one rotation of a padded input
-    /// (batch norms, activations and the rotations are a few percent on top).
-    pub fn flops_per_rotation(&self, padded: usize) -> f64 {
+    /// Multiply-adds x 2 of the convolutions of one net's pass over one rotated padded input
+    /// (batch norms, activations and the rotations are a few percent on top): one rotation's
+    /// Q map, or `group` of them in an equivariant net.
+    pub fn flops_per_pass(&self, padded: usize) -> f64 {
         let mut flops = 0.0;
         let mut size = padded;
         let mut channels = [3usize, 1, 1];
@@ -107,6 +138,6 @@ impl QNetConfig {
                 flops += 2.0 * area * (c * c * 9) as f64;
             }
         }
-        flops + 2.0 * area * (features * self.head_width + self.head_width) as f64
+        flops + 2.0 * area * (features * self.head_width + self.head_width * self.group()) as f64
     }
 }

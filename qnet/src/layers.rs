@@ -42,7 +42,9 @@ pub enum Layer {
 }
 
 impl NetLayers {
+    /// `net`'s layers, laid out in full ([`PrimitiveNet::expanded`]).
     pub fn of(net: &PrimitiveNet) -> Result<Self, QNetError> {
+        let net = &net.expanded();
         let trunk = |trunk: &Trunk| -> Result<Vec<Layer>, QNetError> {
             let mut layers = Vec::new();
             for block in &trunk.blocks {

@@ -14,6 +14,7 @@ pub mod agreement;
 pub mod batch_norm;
 pub mod config;
 pub mod device;
+pub mod equivariant;
 pub mod error;
 pub mod gemm_conv;
 pub mod geometry;

@@ -2,37 +2,53 @@
 //! (optionally context convolutions over them together), then the paper's head (BN, ReLU,
 //! 1x1 conv to 64, BN, ReLU, 1x1 conv to 1).
 
+use burn::module::{Param, RunningState};
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
+use burn::tensor::module;
+use burn::tensor::ops::ConvOptions;
 
 use crate::batch_norm;
 use crate::config::QNetConfig;
+use crate::equivariant;
 use crate::gemm_conv::{self, Taps};
 
 /// A 3x3 convolution (stride 2 to go down, or stride 1 with a dilation to see further),
 /// batch norm and ReLU; padded so only the stride changes the size. The convolution has no
 /// bias, as every one followed by a batch norm here (as in the paper's DenseNet trunks and
 /// its head): the norm subtracts it again, so its gradient is only rounding noise, which
-/// Adam's normalised steps would turn into steps of the full learning rate.
+/// Adam's normalised steps would turn into steps of the full learning rate. In a
+/// rotation-equivariant net the convolution holds base kernels and the norm one channel a
+/// field ([`crate::equivariant`]).
 #[derive(Module, Debug)]
 pub struct ConvBlock {
     pub(crate) conv: Conv2d,
     pub(crate) norm: BatchNorm,
+    /// Channels a field in and out: `[1, 1]` in an ordinary net.
+    #[module(skip)]
+    pub(crate) groups: [usize; 2],
 }
 
 impl ConvBlock {
-    fn down(channels_in: usize, channels_out: usize, device: &Device) -> Self {
-        Self::new([channels_in, channels_out], 2, 1, device)
+    fn down(channels_in: usize, channels_out: usize, groups: [usize; 2], device: &Device) -> Self {
+        Self::new([channels_in, channels_out], 2, 1, groups, device)
     }
 
-    fn context(channels: usize, dilation: usize, device: &Device) -> Self {
-        Self::new([channels, channels], 1, dilation, device)
+    fn context(channels: usize, dilation: usize, group: usize, device: &Device) -> Self {
+        Self::new([channels, channels], 1, dilation, [group, group], device)
     }
 
-    fn new(channels: [usize; 2], stride: usize, dilation: usize, device: &Device) -> Self {
+    fn new(
+        channels: [usize; 2],
+        stride: usize,
+        dilation: usize,
+        groups: [usize; 2],
+        device: &Device,
+    ) -> Self {
+        let fields = channels[1] / groups[1];
         Self {
-            conv: Conv2dConfig::new(channels, [3, 3])
+            conv: Conv2dConfig::new([channels[0], fields], [3, 3])
                 .with_bias(false)
                 .with_stride([stride, stride])
                 .with_dilation([dilation, dilation])
@@ -40,41 +56,111 @@ impl ConvBlock {
                     dilation, dilation, dilation, dilation,
                 ))
                 .init(device),
-            norm: BatchNormConfig::new(channels[1]).init(device),
+            norm: BatchNormConfig::new(fields).init(device),
+            groups,
         }
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        batch_norm::forward_relu(&self.norm, convolve(&self.conv, x))
+        let y = convolve(&self.conv, self.groups, x);
+        norm_relu(&self.norm, self.groups[1], y)
+    }
+
+    /// This block as an ordinary one computing the same function in inference.
+    fn expanded(&self) -> Self {
+        Self {
+            conv: expanded_conv(&self.conv, self.groups),
+            norm: expanded_norm(&self.norm, self.groups[1]),
+            groups: [1, 1],
+        }
     }
 }
 
-/// `conv` on `x`, by the fastest route for what the result is for. On the CPU, a net in
-/// training (its weights take gradients) goes through [`conv_as_gemm`]; otherwise, and on
-/// any other backend (a GPU's, whose convolution kernels and their gradients are burn's
-/// own, tuned for it), burn's own `conv2d`.
-fn convolve(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    if conv.weight.val().is_require_grad() && x.device().without_autodiff() == Device::flex() {
-        conv_as_gemm(conv, x)
+/// `norm` and a ReLU over `x` whose fields have `group` channels each, sharing a field's
+/// statistics.
+fn norm_relu(norm: &BatchNorm, group: usize, x: Tensor<4>) -> Tensor<4> {
+    if group == 1 {
+        return batch_norm::forward_relu(norm, x);
+    }
+    equivariant::unfields(
+        batch_norm::forward_relu(norm, equivariant::fields(x, group)),
+        group,
+    )
+}
+
+/// `conv` with its base kernels laid out in full and its bias given to every channel of a
+/// field ([`equivariant::expand`]).
+fn expanded_conv(conv: &Conv2d, groups: [usize; 2]) -> Conv2d {
+    let mut full = conv.clone();
+    full.weight = Param::from_tensor(equivariant::expand(conv.weight.val(), groups));
+    full.bias = conv
+        .bias
+        .as_ref()
+        .map(|bias| Param::from_tensor(equivariant::per_channel(bias.val(), groups[1])));
+    full
+}
+
+/// `norm` over fields of `group` channels as a norm of every channel.
+fn expanded_norm(norm: &BatchNorm, group: usize) -> BatchNorm {
+    let [fields] = norm.gamma.dims();
+    let device = norm.gamma.device();
+    let per_channel = |values: Tensor<1>| equivariant::per_channel(values, group);
+    let mut full = BatchNormConfig::new(fields * group)
+        .with_epsilon(norm.epsilon)
+        .with_momentum(norm.momentum)
+        .init(&device);
+    full.gamma = Param::from_tensor(per_channel(norm.gamma.val()));
+    full.beta = Param::from_tensor(per_channel(norm.beta.val()));
+    full.running_mean = RunningState::new(per_channel(norm.running_mean.value()));
+    full.running_var = RunningState::new(per_channel(norm.running_var.value()));
+    full
+}
+
+/// `conv` (its base kernels laid out for `groups`) on `x`, by the fastest route for what
+/// the result is for. On the CPU, a net in training (its weights take gradients) goes
+/// through [`conv_as_gemm`]; otherwise, and on any other backend (a GPU's, whose
+/// convolution kernels and their gradients are burn's own, tuned for it), burn's own
+/// `conv2d`.
+fn convolve(conv: &Conv2d, groups: [usize; 2], x: Tensor<4>) -> Tensor<4> {
+    let training = conv.weight.val().is_require_grad();
+    let weight = equivariant::expand(conv.weight.val(), groups);
+    let bias = conv
+        .bias
+        .as_ref()
+        .map(|bias| equivariant::per_channel(bias.val(), groups[1]));
+    if training && x.device().without_autodiff() == Device::flex() {
+        conv_as_gemm(conv, weight, bias, x)
     } else {
-        conv.forward(x)
+        let options = ConvOptions::new(
+            conv.stride,
+            [conv.dilation[0] * (conv.kernel_size[0] - 1) / 2; 2],
+            conv.dilation,
+            1,
+        );
+        module::conv2d(x, weight, bias, options)
     }
 }
 
-/// `conv` (square kernel, stride and dilation, padded to keep the size: the net's every
-/// convolution) as one matrix product of its weights with the input unfolded
-/// ([`crate::gemm_conv`]). Forward it equals burn's `conv2d`; backward, its weight gradient is
-/// one GEMM over the batch's pixels, where burn's generic `conv2d_weight_backward` runs a
-/// convolution whose kernel is the whole output gradient, several times slower at a training
-/// step's one or two items, and its input gradient the unfolding's own fold.
-fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+/// `conv`'s shape (square kernel, stride and dilation, padded to keep the size: the net's
+/// every convolution) with `weight` and `bias`, as one matrix product of the weights with
+/// the input unfolded ([`crate::gemm_conv`]). Forward it equals burn's `conv2d`; backward,
+/// its weight gradient is one GEMM over the batch's pixels, where burn's generic
+/// `conv2d_weight_backward` runs a convolution whose kernel is the whole output gradient,
+/// several times slower at a training step's one or two items, and its input gradient the
+/// unfolding's own fold.
+fn conv_as_gemm(
+    conv: &Conv2d,
+    weight: Tensor<4>,
+    bias: Option<Tensor<1>>,
+    x: Tensor<4>,
+) -> Tensor<4> {
     let [n, channels, height, width] = x.dims();
-    let [out_channels, _, k, _] = conv.weight.dims();
+    let [out_channels, _, k, _] = weight.dims();
     let (stride, dilation) = (conv.stride[0], conv.dilation[0]);
     let pad = dilation * (k - 1) / 2;
     let (out_h, out_w) = ((height - 1) / stride + 1, (width - 1) / stride + 1);
     let mut y = if k == 1 && stride == 1 {
-        let weights = conv.weight.val().reshape([1, out_channels, channels]);
+        let weights = weight.reshape([1, out_channels, channels]);
         weights
             .matmul(x.reshape([n, channels, height * width]))
             .reshape([n, out_channels, out_h, out_w])
@@ -85,10 +171,10 @@ fn conv_as_gemm(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
             dilation,
             padding: pad,
         };
-        gemm_conv::conv(x, conv.weight.val(), taps)
+        gemm_conv::conv(x, weight, taps)
     };
-    if let Some(bias) = &conv.bias {
-        y = y + bias.val().reshape([1, out_channels, 1, 1]);
+    if let Some(bias) = bias {
+        y = y + bias.reshape([1, out_channels, 1, 1]);
     }
     y
 }
@@ -104,10 +190,11 @@ impl Trunk {
     /// fuses them.
     fn new(channels_in: usize, config: &QNetConfig, device: &Device) -> Self {
         let mut blocks = Vec::new();
-        let mut channels = channels_in;
+        let (mut channels, mut group_in) = (channels_in, 1);
         for &width in &config.trunk_widths {
-            blocks.push(ConvBlock::down(channels, width, device));
-            channels = width;
+            let groups = [group_in, config.group()];
+            blocks.push(ConvBlock::down(channels, width, groups, device));
+            (channels, group_in) = (width, config.group());
         }
         if !config.fuse_context {
             blocks.extend(Self::context(channels, config, device).blocks);
@@ -120,13 +207,19 @@ impl Trunk {
         let blocks = config
             .context_dilations
             .iter()
-            .map(|&dilation| ConvBlock::context(channels, dilation, device))
+            .map(|&dilation| ConvBlock::context(channels, dilation, config.group(), device))
             .collect();
         Self { blocks }
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         self.blocks.iter().fold(x, |x, block| block.forward(x))
+    }
+
+    fn expanded(&self) -> Self {
+        Self {
+            blocks: self.blocks.iter().map(ConvBlock::expanded).collect(),
+        }
     }
 }
 
@@ -145,6 +238,9 @@ pub struct PrimitiveNet {
     /// The outcome logit's 1x1 convolution beside `head_out`, when the net has one
     /// (`QNetConfig::grasp_outcome_head`).
     pub(crate) outcome_out: Option<Conv2d>,
+    /// Channels a field ([`QNetConfig::group`]): 1 in an ordinary net.
+    #[module(skip)]
+    pub(crate) group: usize,
 }
 
 impl PrimitiveNet {
@@ -170,7 +266,34 @@ impl PrimitiveNet {
             head_norm_hidden,
             head_out,
             outcome_out: outcome.then(|| Self::head_output(config, device)),
+            group: config.group(),
         }
+    }
+
+    /// This net as an ordinary one (one channel a field, every weight laid out) computing
+    /// the same function in inference: what other engines are built from.
+    pub fn expanded(&self) -> Self {
+        let groups = [self.group; 2];
+        Self {
+            colour: self.colour.expanded(),
+            depth: self.depth.expanded(),
+            mask: self.mask.expanded(),
+            fused: self.fused.expanded(),
+            head_norm_in: expanded_norm(&self.head_norm_in, self.group),
+            head_hidden: expanded_conv(&self.head_hidden, groups),
+            head_norm_hidden: expanded_norm(&self.head_norm_hidden, self.group),
+            head_out: expanded_conv(&self.head_out, groups),
+            outcome_out: self
+                .outcome_out
+                .as_ref()
+                .map(|conv| expanded_conv(conv, groups)),
+            group: 1,
+        }
+    }
+
+    /// Channels a field: each pass scores this many action angles a quarter turn apart.
+    pub fn group(&self) -> usize {
+        self.group
     }
 
     /// Starts the head afresh, as a new net's, keeping the trunks (pretrained on another
@@ -188,20 +311,21 @@ impl PrimitiveNet {
     }
 
     /// The paper's head over the trunks' features: BN, 1x1 conv to `head_width` (no bias:
-    /// a BN follows, as after a [`ConvBlock`]'s), BN, 1x1 conv to one Q value.
+    /// a BN follows, as after a [`ConvBlock`]'s), BN, 1x1 conv to one Q value (a field:
+    /// one per quarter turn in an equivariant net).
     fn head(config: &QNetConfig, device: &Device) -> (BatchNorm, Conv2d, BatchNorm, Conv2d) {
-        let features = Self::features(config);
+        let (features, group) = (Self::features(config), config.group());
         (
-            BatchNormConfig::new(features).init(device),
-            Conv2dConfig::new([features, config.head_width], [1, 1])
+            BatchNormConfig::new(features / group).init(device),
+            Conv2dConfig::new([features, config.head_width / group], [1, 1])
                 .with_bias(false)
                 .init(device),
-            BatchNormConfig::new(config.head_width).init(device),
+            BatchNormConfig::new(config.head_width / group).init(device),
             Self::head_output(config, device),
         )
     }
 
-    /// A 1x1 convolution from the head's hidden features to one value a pixel.
+    /// A 1x1 convolution from the head's hidden features to one value a pixel (a field).
     fn head_output(config: &QNetConfig, device: &Device) -> Conv2d {
         Conv2dConfig::new([config.head_width, 1], [1, 1]).init(device)
     }
@@ -213,14 +337,15 @@ impl PrimitiveNet {
         last(3) + 2 * last(1)
     }
 
-    /// Low-resolution Q maps `[n, 1, P / d, P / d]` of rotated inputs colour `[n, 3, P, P]`,
-    /// depth and mask `[n, 1, P, P]`.
+    /// Low-resolution Q maps `[n, group, P / d, P / d]` of rotated inputs colour
+    /// `[n, 3, P, P]`, depth and mask `[n, 1, P, P]`: map `g` for the action turned `g`
+    /// quarter turns from the input's rotation ([`crate::equivariant`]).
     pub fn forward(&self, colour: Tensor<4>, depth: Tensor<4>, mask: Tensor<4>) -> Tensor<4> {
-        convolve(&self.head_out, self.hidden(colour, depth, mask))
+        self.output(&self.head_out, self.hidden(colour, depth, mask))
     }
 
-    /// [`Self::forward`]'s Q maps and, when the net has an outcome head, its logit maps as a
-    /// second channel: `[n, 1 or 2, P / d, P / d]`.
+    /// [`Self::forward`]'s Q maps and, when the net has an outcome head, its logit maps
+    /// after them: `[n, group x (1 or 2), P / d, P / d]`.
     pub fn forward_with_outcome(
         &self,
         colour: Tensor<4>,
@@ -231,13 +356,18 @@ impl PrimitiveNet {
         match &self.outcome_out {
             Some(outcome) => Tensor::cat(
                 vec![
-                    convolve(&self.head_out, hidden.clone()),
-                    convolve(outcome, hidden),
+                    self.output(&self.head_out, hidden.clone()),
+                    self.output(outcome, hidden),
                 ],
                 1,
             ),
-            None => convolve(&self.head_out, hidden),
+            None => self.output(&self.head_out, hidden),
         }
+    }
+
+    /// One of the head's 1x1 output convolutions over its hidden features.
+    fn output(&self, conv: &Conv2d, hidden: Tensor<4>) -> Tensor<4> {
+        convolve(conv, [self.group; 2], hidden)
     }
 
     /// Whether the net has an outcome head.
@@ -255,8 +385,10 @@ impl PrimitiveNet {
             ],
             1,
         );
-        let x = batch_norm::forward_relu(&self.head_norm_in, self.fused.forward(features));
-        batch_norm::forward_relu(&self.head_norm_hidden, convolve(&self.head_hidden, x))
+        let group = self.group;
+        let x = norm_relu(&self.head_norm_in, group, self.fused.forward(features));
+        let hidden = convolve(&self.head_hidden, [group; 2], x);
+        norm_relu(&self.head_norm_hidden, group, hidden)
     }
 }
 
@@ -330,15 +462,65 @@ mod tests {
     }
 
     #[test]
+    fn an_equivariant_net_turns_its_maps_with_its_input_and_shifts_their_angles() {
+        // Channel g scores the action g quarter turns on: the input turned a quarter turn
+        // gives each map turned, one angle on. Exact on sides that stay odd down the
+        // strides (17, 9, 5), in training (batch statistics shared within a field) and
+        // frozen, and the same function as the net laid out in full.
+        let config = QNetConfig {
+            trunk_widths: vec![4, 8],
+            context_dilations: vec![1],
+            head_width: 8,
+            rotation_equivariant: true,
+            ..QNetConfig::default()
+        };
+        let device = Device::flex();
+        let net = PrimitiveNet::new(&config, false, &device);
+        let input = |c| Tensor::<4>::random([2, c, 17, 17], Distribution::Default, &device);
+        let planes = [input(3), input(1), input(1)];
+        let turn = crate::equivariant::quarter_turn::<4>;
+        let values = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+        let forward = |net: &PrimitiveNet, turned: bool| {
+            let on = net.devices()[0].clone();
+            let [c, d, m] = planes.clone().map(|x| {
+                let x = x.to_device(&on);
+                if turned { turn(x) } else { x }
+            });
+            net.forward(c, d, m)
+        };
+        let check = |net: &PrimitiveNet, what: &str| {
+            let y = forward(net, false);
+            assert_eq!(y.dims(), [2, 4, 5, 5]);
+            let expected = turn(y).roll_dim(1, 1);
+            assert_close(&values(forward(net, true)), &values(expected), 1e-4, what);
+        };
+        let training = net.to_device(&device.autodiff()).train();
+        check(&training, "in training");
+        let frozen = training.valid();
+        check(&frozen, "frozen");
+        let ordinary = frozen.expanded();
+        assert_eq!(ordinary.group(), 1);
+        assert_close(
+            &values(forward(&ordinary, false)),
+            &values(forward(&frozen, false)),
+            1e-5,
+            "laid out in full",
+        );
+    }
+
+    #[test]
     fn the_gemm_convolution_and_its_gradients_equal_burns_conv2d() {
         let device = Device::flex().autodiff();
         for (stride, dilation) in [(2, 1), (1, 1), (1, 2)] {
-            let mut conv = ConvBlock::new([3, 5], stride, dilation, &device).conv;
+            let mut conv = ConvBlock::new([3, 5], stride, dilation, [1, 1], &device).conv;
             // A block's convolution has none, the head's last has one: test with one.
             let bias = Tensor::<1>::random([5], Distribution::Default, &device);
             conv.bias = Some(burn::module::Param::from_tensor(bias));
             let x = Tensor::<4>::random([2, 3, 12, 12], Distribution::Default, &device);
-            let ours = output_and_gradients(&conv, &x, conv_as_gemm);
+            let ours = output_and_gradients(&conv, &x, |conv, x| {
+                let bias = conv.bias.as_ref().map(|bias| bias.val());
+                conv_as_gemm(conv, conv.weight.val(), bias, x)
+            });
             let burns = output_and_gradients(&conv, &x, |conv, x| conv.forward(x));
             for (what, (a, b)) in ["output", "input grad", "weight grad", "bias grad"]
                 .iter()

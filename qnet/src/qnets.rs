@@ -15,6 +15,7 @@ use policy::QMaps;
 
 use crate::acting::every_rotation;
 use crate::config::QNetConfig;
+use crate::equivariant;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
 use crate::input::NetInput;
@@ -92,7 +93,8 @@ impl QNets {
     }
 
     /// The maps `[n, channels, side, side]` of one primitive's items: the Q value's, then
-    /// with `outcome` the outcome logit's when the net has that head.
+    /// with `outcome` the outcome logit's when the net has that head. Items that differ only
+    /// by quarter turns of the action share one pass of an equivariant net.
     fn maps(
         &self,
         primitive: Primitive,
@@ -101,27 +103,53 @@ impl QNets {
         outcome: bool,
     ) -> Result<Tensor<4>, QNetError> {
         let device = self.device();
-        let n = items.len();
+        let net = self.net(primitive);
         let (p, s, side) = (geometry.padded(), geometry.low_side(), geometry.side());
-        let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
+        // The passes (input, input rotation) and each item's (pass, output channel).
+        let mut passes: Vec<(&NetInput, u8)> = Vec::new();
+        let mut picks = Vec::with_capacity(items.len());
         for &(input, rotation) in items {
             geometry.check(input, rotation)?;
-            geometry.rotate_input(input, rotation, [&mut colour, &mut depth, &mut mask]);
+            let (turn, channel) = equivariant::pass_and_channel(rotation, net.group());
+            let same = |&(other, t): &(&NetInput, u8)| std::ptr::eq(other, input) && t == turn;
+            let pass = passes.iter().position(same).unwrap_or_else(|| {
+                passes.push((input, turn));
+                passes.len() - 1
+            });
+            picks.push((pass, turn, channel));
         }
+        let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
+        for &(input, turn) in &passes {
+            geometry.rotate_input(input, turn, [&mut colour, &mut depth, &mut mask]);
+        }
+        let m = passes.len();
         let plane = |values: Vec<f32>, channels: usize| {
-            Tensor::<4>::from_data(TensorData::new(values, [n, channels, p, p]), &device)
+            Tensor::<4>::from_data(TensorData::new(values, [m, channels, p, p]), &device)
         };
-        let net = self.net(primitive);
         let planes = (plane(colour, 3), plane(depth, 1), plane(mask, 1));
         let low = if outcome {
             net.forward_with_outcome(planes.0, planes.1, planes.2)
         } else {
             net.forward(planes.0, planes.1, planes.2)
         };
+        // Each item's channel of each head (Q, then outcome), rotated back by its pass's
+        // input rotation.
         let channels = low.dims()[1];
-        let rotations: Vec<u8> = items.iter().map(|&(_, k)| k).collect();
+        let heads = channels / net.group();
+        let rows: Vec<i64> = picks
+            .iter()
+            .flat_map(|&(pass, _, channel)| {
+                (0..heads).map(move |head| (pass * channels + head * net.group() + channel) as i64)
+            })
+            .collect();
+        let n = items.len();
+        let low = low
+            .reshape([m * channels, s, s])
+            .select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
+            .reshape([n, heads, s, s]);
+        let turns: Vec<u8> = picks.iter().map(|&(_, turn, _)| turn).collect();
         let grid = Tensor::<4>::from_data(
-            TensorData::new(geometry.back_grid(&rotations), [n, s, s, 2]),
+            TensorData::new(geometry.back_grid(&turns), [n, s, s, 2]),
             &device,
         );
         let back = low.grid_sample_2d(
@@ -137,7 +165,7 @@ impl QNets {
                 .with_output_size([p, p]),
         );
         let o = geometry.offset();
-        Ok(full.slice([0..n, 0..channels, o..o + side, o..o + side]))
+        Ok(full.slice([0..n, 0..heads, o..o + side, o..o + side]))
     }
 
     /// Q maps of one primitive for all rotations, as the actor's plain arrays.

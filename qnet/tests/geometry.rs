@@ -105,3 +105,31 @@ fn the_back_rotation_puts_a_rotated_frame_marker_at_the_actions_angle() {
         );
     }
 }
+
+#[test]
+fn the_input_rotation_a_quarter_turn_on_is_the_equivariant_nets_quarter_turn() {
+    // A rotation-equivariant net scores rotation k + 4 from rotation k's input turned by
+    // `equivariant::quarter_turn`: that must be the input rotation's own step of 90 degrees.
+    let geometry = Geometry::new(SIDE, &QNetConfig::default());
+    let p = geometry.padded();
+    let device = Device::flex();
+    let mut input = marked(20, 70);
+    input.mask[50 * SIDE + 30] = 1.0;
+    let planes = |k: u8| {
+        let [mut c, mut d, mut m] = [Vec::new(), Vec::new(), Vec::new()];
+        geometry.rotate_input(&input, k, [&mut c, &mut d, &mut m]);
+        [(c, 3), (d, 1), (m, 1)].map(|(values, channels)| {
+            Tensor::<3>::from_data(TensorData::new(values, [channels, p, p]), &device)
+        })
+    };
+    for k in 0..4u8 {
+        for (turned, before) in planes(k + 4).into_iter().zip(planes(k)) {
+            let turned = qnet::equivariant::quarter_turn(turned);
+            assert_eq!(
+                turned.into_data().try_to_vec::<f32>().unwrap(),
+                before.into_data().try_to_vec::<f32>().unwrap(),
+                "rotation {k}"
+            );
+        }
+    }
+}

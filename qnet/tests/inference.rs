@@ -86,6 +86,19 @@ fn the_inference_form_gives_burns_q_maps_with_fused_context_at_224() {
 }
 
 #[test]
+fn the_inference_form_gives_burns_q_maps_for_rotation_equivariant_nets() {
+    // Four passes for the sixteen rotations, each scoring four angles; the stage nets'
+    // context convolutions and outcome head.
+    let config = QNetConfig {
+        context_dilations: vec![1, 2],
+        grasp_outcome_head: true,
+        rotation_equivariant: true,
+        ..QNetConfig::default()
+    };
+    agrees(&config, 0.004);
+}
+
+#[test]
 fn the_convolutions_alone_give_the_maps_before_the_rotations() {
     // `low_maps` of two rotated inputs equals burn's forward of the same planes.
     let config = QNetConfig::default();

@@ -21,6 +21,7 @@ use sim::Primitive;
 use policy::QMaps;
 
 use crate::acting::every_rotation;
+use crate::equivariant;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
 use crate::input::NetInput;
@@ -39,6 +40,8 @@ pub struct Inference {
 /// One primitive's net in inference form.
 #[derive(Clone, Debug)]
 struct NetForm {
+    /// Channels a field: the action angles a quarter turn apart that one pass scores.
+    group: usize,
     /// Colour, depth and mask trunks, each convolution with its batch norm and ReLU.
     trunks: [Vec<FoldedConv>; 3],
     /// Context convolutions over the trunks' features together (empty unless fused).
@@ -108,30 +111,46 @@ impl Inference {
             geometry.check(input, k)?;
         }
         let net = self.net(primitive);
+        // The input rotations the rotations asked for need, each run once: its
+        // low-resolution maps, one a quarter turn of the action.
+        let turn_and_channel = |k| equivariant::pass_and_channel(k, net.group);
+        let mut turns: Vec<u8> = rotations.iter().map(|&k| turn_and_channel(k).0).collect();
+        turns.sort_unstable();
+        turns.dedup();
+        let lows: Vec<Vec<f32>> = turns
+            .par_iter()
+            .map(|&turn| {
+                WORKSPACE.with_borrow_mut(|ws| {
+                    ws.planes.iter_mut().for_each(Vec::clear);
+                    let [colour, depth, mask] = &mut ws.planes;
+                    geometry.rotate_input(input, turn, [colour, depth, mask]);
+                    let planes = std::mem::take(&mut ws.planes);
+                    let mut low = Vec::new();
+                    net.forward(&planes, geometry.padded(), ws, &mut low);
+                    ws.planes = planes;
+                    low
+                })
+            })
+            .collect();
         let side = geometry.side();
+        let low_area = geometry.low_side() * geometry.low_side();
         let mut values = vec![0.0; rotations.len() * side * side];
         values
             .par_chunks_mut(side * side)
             .zip(rotations)
             .for_each(|(map, &k)| {
-                WORKSPACE.with_borrow_mut(|ws| {
-                    ws.planes.iter_mut().for_each(Vec::clear);
-                    let [colour, depth, mask] = &mut ws.planes;
-                    geometry.rotate_input(input, k, [colour, depth, mask]);
-                    let mut low = std::mem::take(&mut ws.low);
-                    let planes = std::mem::take(&mut ws.planes);
-                    net.forward(&planes, geometry.padded(), ws, &mut low);
-                    ws.planes = planes;
-                    rotate_back(&low, k, geometry, &mut ws.back, map);
-                    ws.low = low;
-                });
+                let (turn, channel) = turn_and_channel(k);
+                let low = &lows[turns.binary_search(&turn).expect("every turn was run")];
+                let low = &low[channel * low_area..(channel + 1) * low_area];
+                WORKSPACE.with_borrow_mut(|ws| rotate_back(low, turn, geometry, &mut ws.back, map));
             });
         Ok(values)
     }
 
-    /// The low-resolution Q maps (`n x low_side^2`) of `n` inputs already padded and
-    /// rotated, laid out as [`Geometry::rotate_input`] appends them: the convolutions alone,
-    /// without the rotations around them.
+    /// The low-resolution Q maps (`n x group x low_side^2`: one a quarter turn of the
+    /// action in an equivariant net) of `n` inputs already padded and rotated, laid out as
+    /// [`Geometry::rotate_input`] appends them: the convolutions alone, without the
+    /// rotations around them.
     pub fn low_maps(
         &self,
         primitive: Primitive,
@@ -141,7 +160,7 @@ impl Inference {
         let net = self.net(primitive);
         let area = geometry.padded() * geometry.padded();
         let n = rotated[1].len() / area;
-        let low_area = geometry.low_side() * geometry.low_side();
+        let low_area = net.group * geometry.low_side() * geometry.low_side();
         let mut maps = vec![0.0; n * low_area];
         maps.par_chunks_mut(low_area)
             .enumerate()
@@ -164,6 +183,8 @@ impl Inference {
 
 impl NetForm {
     fn new(net: &PrimitiveNet) -> Result<Self, QNetError> {
+        let group = net.group();
+        let net = &net.expanded();
         let blocks = |trunk: &Trunk| -> Result<Vec<FoldedConv>, QNetError> {
             trunk
                 .blocks
@@ -172,6 +193,7 @@ impl NetForm {
                 .collect()
         };
         Ok(Self {
+            group,
             trunks: [
                 blocks(&net.colour)?,
                 blocks(&net.depth)?,
@@ -220,7 +242,7 @@ impl NetForm {
         }
         hidden.resize(self.hidden.channels_out() * area, 0.0);
         self.hidden.run(features, side, hidden, scratch);
-        low.resize(area, 0.0);
+        low.resize(self.out.channels_out() * area, 0.0);
         self.out.run(hidden, side, low, scratch);
     }
 }
