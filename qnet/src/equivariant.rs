@@ -54,6 +54,9 @@ pub fn expand(base: Tensor<4>, groups: [usize; 2]) -> Tensor<4> {
 /// Per-field values `[fields]` (a batch norm's, a bias) given to each of the field's `group`
 /// channels: `[fields * group]`.
 pub fn per_channel(values: Tensor<1>, group: usize) -> Tensor<1> {
+    if group == 1 {
+        return values;
+    }
     let [fields] = values.dims();
     values
         .reshape([fields, 1])

@@ -88,16 +88,30 @@ fn norm_relu(norm: &BatchNorm, group: usize, x: Tensor<4>) -> Tensor<4> {
     )
 }
 
-/// `conv` with its base kernels laid out in full and its bias given to every channel of a
-/// field ([`equivariant::expand`]).
-fn expanded_conv(conv: &Conv2d, groups: [usize; 2]) -> Conv2d {
-    let mut full = conv.clone();
-    full.weight = Param::from_tensor(equivariant::expand(conv.weight.val(), groups));
-    full.bias = conv
+/// `conv`'s weights with its base kernels laid out for `groups`, and its bias given to
+/// every channel of a field ([`equivariant::expand`]).
+fn full_weights(conv: &Conv2d, groups: [usize; 2]) -> (Tensor<4>, Option<Tensor<1>>) {
+    let weight = equivariant::expand(conv.weight.val(), groups);
+    let bias = conv
         .bias
         .as_ref()
-        .map(|bias| Param::from_tensor(equivariant::per_channel(bias.val(), groups[1])));
+        .map(|bias| equivariant::per_channel(bias.val(), groups[1]));
+    (weight, bias)
+}
+
+/// `conv` as an ordinary convolution with its [`full_weights`].
+fn expanded_conv(conv: &Conv2d, groups: [usize; 2]) -> Conv2d {
+    let (weight, bias) = full_weights(conv, groups);
+    let mut full = conv.clone();
+    full.weight = Param::from_tensor(weight);
+    full.bias = bias.map(Param::from_tensor);
     full
+}
+
+/// The padding on every side that keeps a stride-1 convolution's size (the net's every
+/// convolution is padded so).
+fn same_padding(conv: &Conv2d) -> usize {
+    conv.dilation[0] * (conv.kernel_size[0] - 1) / 2
 }
 
 /// `norm` over fields of `group` channels as a norm of every channel.
@@ -123,20 +137,11 @@ fn expanded_norm(norm: &BatchNorm, group: usize) -> BatchNorm {
 /// `conv2d`.
 fn convolve(conv: &Conv2d, groups: [usize; 2], x: Tensor<4>) -> Tensor<4> {
     let training = conv.weight.val().is_require_grad();
-    let weight = equivariant::expand(conv.weight.val(), groups);
-    let bias = conv
-        .bias
-        .as_ref()
-        .map(|bias| equivariant::per_channel(bias.val(), groups[1]));
+    let (weight, bias) = full_weights(conv, groups);
     if training && x.device().without_autodiff() == Device::flex() {
         conv_as_gemm(conv, weight, bias, x)
     } else {
-        let options = ConvOptions::new(
-            conv.stride,
-            [conv.dilation[0] * (conv.kernel_size[0] - 1) / 2; 2],
-            conv.dilation,
-            1,
-        );
+        let options = ConvOptions::new(conv.stride, [same_padding(conv); 2], conv.dilation, 1);
         module::conv2d(x, weight, bias, options)
     }
 }
@@ -157,7 +162,6 @@ fn conv_as_gemm(
     let [n, channels, height, width] = x.dims();
     let [out_channels, _, k, _] = weight.dims();
     let (stride, dilation) = (conv.stride[0], conv.dilation[0]);
-    let pad = dilation * (k - 1) / 2;
     let (out_h, out_w) = ((height - 1) / stride + 1, (width - 1) / stride + 1);
     let mut y = if k == 1 && stride == 1 {
         let weights = weight.reshape([1, out_channels, channels]);
@@ -169,7 +173,7 @@ fn conv_as_gemm(
             kernel: k,
             stride,
             dilation,
-            padding: pad,
+            padding: same_padding(conv),
         };
         gemm_conv::conv(x, weight, taps)
     };

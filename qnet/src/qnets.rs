@@ -116,7 +116,7 @@ impl QNets {
                 passes.push((input, turn));
                 passes.len() - 1
             });
-            picks.push((pass, turn, channel));
+            picks.push((pass, channel));
         }
         let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
         for &(input, turn) in &passes {
@@ -138,7 +138,7 @@ impl QNets {
         let heads = channels / net.group();
         let rows: Vec<i64> = picks
             .iter()
-            .flat_map(|&(pass, _, channel)| {
+            .flat_map(|&(pass, channel)| {
                 (0..heads).map(move |head| (pass * channels + head * net.group() + channel) as i64)
             })
             .collect();
@@ -147,7 +147,7 @@ impl QNets {
             .reshape([m * channels, s, s])
             .select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
             .reshape([n, heads, s, s]);
-        let turns: Vec<u8> = picks.iter().map(|&(_, turn, _)| turn).collect();
+        let turns: Vec<u8> = picks.iter().map(|&(pass, _)| passes[pass].1).collect();
         let grid = Tensor::<4>::from_data(
             TensorData::new(geometry.back_grid(&turns), [n, s, s, 2]),
             &device,

@@ -40,8 +40,6 @@ pub struct Inference {
 /// One primitive's net in inference form.
 #[derive(Clone, Debug)]
 struct NetForm {
-    /// Channels a field: the action angles a quarter turn apart that one pass scores.
-    group: usize,
     /// Colour, depth and mask trunks, each convolution with its batch norm and ReLU.
     trunks: [Vec<FoldedConv>; 3],
     /// Context convolutions over the trunks' features together (empty unless fused).
@@ -113,7 +111,7 @@ impl Inference {
         let net = self.net(primitive);
         // The input rotations the rotations asked for need, each run once: its
         // low-resolution maps, one a quarter turn of the action.
-        let turn_and_channel = |k| equivariant::pass_and_channel(k, net.group);
+        let turn_and_channel = |k| equivariant::pass_and_channel(k, net.group());
         let mut turns: Vec<u8> = rotations.iter().map(|&k| turn_and_channel(k).0).collect();
         turns.sort_unstable();
         turns.dedup();
@@ -160,7 +158,7 @@ impl Inference {
         let net = self.net(primitive);
         let area = geometry.padded() * geometry.padded();
         let n = rotated[1].len() / area;
-        let low_area = net.group * geometry.low_side() * geometry.low_side();
+        let low_area = net.group() * geometry.low_side() * geometry.low_side();
         let mut maps = vec![0.0; n * low_area];
         maps.par_chunks_mut(low_area)
             .enumerate()
@@ -183,7 +181,6 @@ impl Inference {
 
 impl NetForm {
     fn new(net: &PrimitiveNet) -> Result<Self, QNetError> {
-        let group = net.group();
         let net = &net.expanded();
         let blocks = |trunk: &Trunk| -> Result<Vec<FoldedConv>, QNetError> {
             trunk
@@ -193,7 +190,6 @@ impl NetForm {
                 .collect()
         };
         Ok(Self {
-            group,
             trunks: [
                 blocks(&net.colour)?,
                 blocks(&net.depth)?,
@@ -204,6 +200,12 @@ impl NetForm {
             hidden: FoldedConv::new(&net.head_hidden, Some(&net.head_norm_hidden), true)?,
             out: FoldedConv::new(&net.head_out, None::<&BatchNorm>, false)?,
         })
+    }
+
+    /// Channels a field: the action angles a quarter turn apart that one pass scores (its
+    /// output's maps).
+    fn group(&self) -> usize {
+        self.out.channels_out()
     }
 
     /// The low-resolution Q map of one padded, rotated input (colour `[3, P, P]`, depth and
