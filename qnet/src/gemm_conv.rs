@@ -48,6 +48,11 @@ impl Taps {
         self.kernel * self.kernel
     }
 
+    /// A 1x1 kernel at stride 1 without padding: its unfolded columns are the input itself.
+    fn pointwise(&self) -> bool {
+        self.kernel == 1 && self.stride == 1 && self.padding == 0
+    }
+
     /// For the tap `kx` columns to the right, the output columns whose input column lies
     /// inside an image of side `h`, `[lo, hi)`, and the input column of the first of them.
     fn inside(&self, kx: usize, h: usize, side: usize) -> (usize, usize, usize) {
@@ -420,7 +425,11 @@ thread_local! {
 
 /// Unfolds one item (`[c, h, h]`) a band of output rows at a time into this thread's band
 /// buffer, handing each band's rows and columns (`c x k x k` rows of `rows x side`) to `f`.
+/// A pointwise kernel's columns are the item itself, handed over whole without a copy.
 fn for_each_band(item: &[f32], h: usize, taps: &Taps, mut f: impl FnMut(Range<usize>, &[f32])) {
+    if taps.pointwise() {
+        return f(0..h, item);
+    }
     let depth = item.len() / (h * h) * taps.per_channel();
     BAND.with_borrow_mut(|band| {
         for rows in bands(depth, taps.out_side(h)) {
@@ -677,18 +686,19 @@ mod tests {
     {
         // An odd side, so a stride-2 row ends on a tap that lacks its pair.
         let (n, c, o, h) = (2, 3, 4, 9);
-        for (stride, dilation) in [(2, 1), (1, 1), (1, 2)] {
+        // 3x3 (stride 2; stride 1, dilations 1 and 2) and the head's pointwise 1x1.
+        for (kernel, stride, dilation) in [(3, 2, 1), (3, 1, 1), (3, 1, 2), (1, 1, 1)] {
             let taps = Taps {
-                kernel: 3,
+                kernel,
                 stride,
                 dilation,
-                padding: dilation,
+                padding: dilation * (kernel - 1) / 2,
             };
-            let side = taps.out_side(h);
+            let (k, side) = (kernel, taps.out_side(h));
             let x = || flex_tensor(wave(n * c * h * h, 0.37), [n, c, h, h]);
-            let weight = || flex_tensor(wave(o * c * 9, 0.53), [o, c, 3, 3]);
+            let weight = || flex_tensor(wave(o * c * k * k, 0.53), [o, c, k, k]);
             let grad = || flex_tensor(wave(n * o * side * side, 0.11), [n, o, side, side]);
-            let what = |part: &str| format!("{part}, stride {stride}, dilation {dilation}");
+            let what = |part: &str| format!("{part}, {taps:?}");
             assert_close(
                 &values(Flex::conv_taps(x(), weight(), taps)),
                 &values(composed::conv::<Flex>(x(), weight(), taps)),

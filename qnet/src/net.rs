@@ -159,24 +159,14 @@ fn conv_as_gemm(
     bias: Option<Tensor<1>>,
     x: Tensor<4>,
 ) -> Tensor<4> {
-    let [n, channels, height, width] = x.dims();
-    let [out_channels, _, k, _] = weight.dims();
-    let (stride, dilation) = (conv.stride[0], conv.dilation[0]);
-    let (out_h, out_w) = ((height - 1) / stride + 1, (width - 1) / stride + 1);
-    let mut y = if k == 1 && stride == 1 {
-        let weights = weight.reshape([1, out_channels, channels]);
-        weights
-            .matmul(x.reshape([n, channels, height * width]))
-            .reshape([n, out_channels, out_h, out_w])
-    } else {
-        let taps = Taps {
-            kernel: k,
-            stride,
-            dilation,
-            padding: same_padding(conv),
-        };
-        gemm_conv::conv(x, weight, taps)
+    let [out_channels, _, kernel, _] = weight.dims();
+    let taps = Taps {
+        kernel,
+        stride: conv.stride[0],
+        dilation: conv.dilation[0],
+        padding: same_padding(conv),
     };
+    let mut y = gemm_conv::conv(x, weight, taps);
     if let Some(bias) = bias {
         y = y + bias.reshape([1, out_channels, 1, 1]);
     }
