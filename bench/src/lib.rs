@@ -437,10 +437,12 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         }
         let per_pass = net.flops_per_pass(geometry.padded());
         let gflop_inference = 2.0 * passes as f64 * per_pass / 1e9;
-        // A grasp trains its rotation and the symmetric one (one pass of an equivariant net,
-        // whose passes score angles a quarter turn apart); backward costs about twice the
+        // A grasp trains its rotation and the symmetric one, one pass or two (an equivariant
+        // net's pass scores angles a quarter turn apart); backward costs about twice the
         // forward.
-        let passes_per_grasp = if net.group() > 1 { 1.0 } else { 2.0 };
+        let [first, symmetric] =
+            [0, ROTATIONS / 2].map(|k| qnet::equivariant::pass_and_channel(k, net.group()).0);
+        let passes_per_grasp = if first == symmetric { 1.0 } else { 2.0 };
         let gflop_batch_train = 3.0 * 8.0 * passes_per_grasp * per_pass / 1e9;
         put("train_step_ms", train);
         put("batch_train_step_ms", batch_train);
