@@ -210,9 +210,10 @@ impl Trainer {
         let per_sample = items.first().map_or(1, Vec::len);
         let items: Vec<Item> = items.into_iter().flatten().collect();
         let inputs: Vec<(&NetInput, u8)> = items.iter().map(|i| (i.input, i.rotation)).collect();
-        let (maps, logits) = self
+        let pixels: Vec<(usize, usize)> = items.iter().map(|i| i.pixel).collect();
+        let (q, logits) = self
             .nets
-            .q_and_outcome_maps(primitive, &inputs, &self.geometry)?;
+            .at_pixels(primitive, &inputs, &pixels, &self.geometry)?;
 
         let repeat = |f: &dyn Fn(&Sample) -> f32| -> Vec<f32> {
             samples
@@ -220,14 +221,12 @@ impl Trainer {
                 .flat_map(|s| std::iter::repeat_n(f(s), per_sample))
                 .collect()
         };
-        let pixels: Vec<(usize, usize)> = items.iter().map(|i| i.pixel).collect();
         let labels = repeat(&|s| s.label);
         let weights = repeat(&|s| s.weight);
-        let (mut loss, q) =
-            executed_pixel_loss(maps, &pixels, &labels, &weights, self.config.huber_delta);
+        let mut loss = executed_pixel_loss(q.clone(), &labels, &weights, self.config.huber_delta);
         if let Some(logits) = logits {
             let succeeded = repeat(&|s| f32::from(u8::from(s.succeeded)));
-            let outcome = outcome_loss(logits, &pixels, &succeeded, &weights);
+            let outcome = outcome_loss(logits, &succeeded, &weights);
             loss = loss + outcome.mul_scalar(self.config.outcome_loss_weight);
         }
 
@@ -405,48 +404,27 @@ fn items<'a>(
     items
 }
 
-/// The weighted Huber loss of Q maps `[n, side, side]` at one pixel each, summed, and the Q
-/// values at those pixels. A one-hot mask picks the pixel, so no other pixel's Q receives
-/// any gradient.
+/// The weighted Huber loss of the Q values at the executed pixels against their labels,
+/// summed.
 pub fn executed_pixel_loss(
-    maps: Tensor<3>,
-    pixels: &[(usize, usize)],
+    q: Tensor<1>,
     labels: &[f32],
     weights: &[f32],
     huber_delta: f32,
-) -> (Tensor<1>, Tensor<1>) {
-    let q = at_pixels(maps, pixels);
+) -> Tensor<1> {
     let tensor = |values: &[f32]| per_item(values, &q);
     let huber = HuberLossConfig::new(huber_delta).init();
-    let loss = (huber.forward_no_reduction(q.clone(), tensor(labels)) * tensor(weights)).sum();
-    (loss, q)
+    (huber.forward_no_reduction(q.clone(), tensor(labels)) * tensor(weights)).sum()
 }
 
-/// The weighted cross-entropy of outcome logit maps `[n, side, side]` at one pixel each
-/// against `succeeded` (1 or 0 each), summed.
-pub fn outcome_loss(
-    logits: Tensor<3>,
-    pixels: &[(usize, usize)],
-    succeeded: &[f32],
-    weights: &[f32],
-) -> Tensor<1> {
-    let x = at_pixels(logits, pixels);
-    let y = per_item(succeeded, &x);
+/// The weighted cross-entropy of the outcome logits at the executed pixels against
+/// `succeeded` (1 or 0 each), summed.
+pub fn outcome_loss(logits: Tensor<1>, succeeded: &[f32], weights: &[f32]) -> Tensor<1> {
+    let y = per_item(succeeded, &logits);
+    let x = logits;
     // -(y log sigmoid(x) + (1 - y) log sigmoid(-x)), without forming sigmoid(x).
     let entropy = -(log_sigmoid(x.clone()) * y.clone() + log_sigmoid(-x.clone()) * (-y + 1.0));
     (entropy * per_item(weights, &x)).sum()
-}
-
-/// The values of maps `[n, side, side]` at one pixel each. A one-hot mask picks the pixel,
-/// so no other pixel receives any gradient.
-fn at_pixels(maps: Tensor<3>, pixels: &[(usize, usize)]) -> Tensor<1> {
-    let [n, side, _] = maps.dims();
-    let mut one_hot = vec![0.0f32; n * side * side];
-    for (j, &(row, col)) in pixels.iter().enumerate() {
-        one_hot[j * side * side + row * side + col] = 1.0;
-    }
-    let one_hot = Tensor::<3>::from_data(TensorData::new(one_hot, [n, side, side]), &maps.device());
-    (maps * one_hot).sum_dim(2).sum_dim(1).reshape([n])
 }
 
 /// One value per item of `like`, as a tensor on its device.

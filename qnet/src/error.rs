@@ -8,6 +8,8 @@ pub enum QNetError {
     Rotation(u8),
     #[error("the input is {got} x {got} but the geometry is for {want} x {want}")]
     Side { got: usize, want: usize },
+    #[error("pixel ({row}, {col}) is outside the {side} x {side} heightmap")]
+    Pixel { row: usize, col: usize, side: usize },
     #[error("the wgpu backend: {0}")]
     Backend(String),
     #[error(transparent)]

@@ -6,8 +6,10 @@
 //! so a net only ever learns to push (or close its jaws) along +x. The inputs need no
 //! gradient, so they are rotated here by a precomputed nearest-neighbour gather (as the
 //! original's nearest sampling); the outputs are rotated back with burn's bilinear
-//! `grid_sample`, which the learner differentiates through, or, in the CPU inference form,
-//! by the same bilinear taps precomputed here ([`Geometry::back_taps`]).
+//! `grid_sample`, or, in the CPU inference form, by the same bilinear taps precomputed here
+//! ([`Geometry::back_taps`]). The learner, which needs one pixel per map, reads it off the
+//! low-resolution map through those taps and the upsampling's, folded together
+//! ([`Geometry::add_pixel_weights`]).
 
 use sim::{ROTATIONS, rotation_angle};
 
@@ -175,6 +177,22 @@ impl Geometry {
     /// Appends the input planes padded and rotated by -theta to `[colour, depth, mask]`
     /// (`3 x P x P`, `P x P` and `P x P` values), which batch as `[n, c, P, P]`.
     pub fn rotate_input(&self, input: &NetInput, rotation: u8, out: [&mut Vec<f32>; 3]) {
+        let area = self.padded * self.padded;
+        let [colour, depth, mask] = out;
+        let (c, d, m) = (colour.len(), depth.len(), mask.len());
+        colour.resize(c + 3 * area, 0.0);
+        depth.resize(d + area, 0.0);
+        mask.resize(m + area, 0.0);
+        self.rotate_input_into(
+            input,
+            rotation,
+            [&mut colour[c..], &mut depth[d..], &mut mask[m..]],
+        );
+    }
+
+    /// [`Geometry::rotate_input`] into `[colour, depth, mask]` slices of exactly
+    /// `3 x P x P`, `P x P` and `P x P` values.
+    pub fn rotate_input_into(&self, input: &NetInput, rotation: u8, out: [&mut [f32]; 3]) {
         let n = self.side * self.side;
         let table = NetInput::table_values();
         let planes: [&[f32]; 5] = [
@@ -187,14 +205,14 @@ impl Geometry {
         let sources = &self.sources[rotation as usize];
         let area = sources.len();
         let [colour, depth, mask] = out;
+        assert!(
+            colour.len() == 3 * area && depth.len() == area && mask.len() == area,
+            "rotated planes of 3 x {area}, {area} and {area} values"
+        );
         // One pass over the table writes all five planes.
-        let (c, d, m) = (colour.len(), depth.len(), mask.len());
-        colour.resize(c + 3 * area, 0.0);
-        depth.resize(d + area, 0.0);
-        mask.resize(m + area, 0.0);
-        let (red, rest) = colour[c..].split_at_mut(area);
+        let (red, rest) = colour.split_at_mut(area);
         let (green, blue) = rest.split_at_mut(area);
-        let mut targets = [red, green, blue, &mut depth[d..], &mut mask[m..]];
+        let mut targets = [red, green, blue, depth, mask];
         for (i, &s) in sources.iter().enumerate() {
             for ((target, plane), outside) in targets.iter_mut().zip(&planes).zip(&table) {
                 target[i] = if s == OUTSIDE {
@@ -202,6 +220,25 @@ impl Geometry {
                 } else {
                     plane[s as usize]
                 };
+            }
+        }
+    }
+
+    /// Adds to `weights` (`s x s`, a low-resolution map's pixels) each pixel's share of the
+    /// value at heightmap pixel `(row, col)` once the map is rotated back by rotation `k`'s
+    /// angle and upsampled: the bilinear upsampling's four taps of the rotated-back map,
+    /// each of them the back rotation's four taps, so at most 16 pixels.
+    pub fn add_pixel_weights(&self, k: u8, (row, col): (usize, usize), weights: &mut [f32]) {
+        let s = self.low_side();
+        let back = self.back_taps(k);
+        let (y0, y1, wy) = self.upsample[row];
+        let (x0, x1, wx) = self.upsample[col];
+        for (y, fy) in [(y0, 1.0 - wy), (y1, wy)] {
+            for (x, fx) in [(x0, 1.0 - wx), (x1, wx)] {
+                let taps = &back[y as usize * s + x as usize];
+                for (&index, &weight) in taps.index.iter().zip(&taps.weight) {
+                    weights[index as usize] += fy * fx * weight;
+                }
             }
         }
     }

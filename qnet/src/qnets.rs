@@ -9,6 +9,7 @@ use burn::tensor::module::interpolate;
 use burn::tensor::ops::{
     GridSampleOptions, GridSamplePaddingMode, InterpolateMode, InterpolateOptions,
 };
+use rayon::prelude::*;
 use sim::Primitive;
 
 use policy::QMaps;
@@ -92,9 +93,36 @@ impl QNets {
         Ok((channel(0), (channels == 2).then(|| channel(1))))
     }
 
+    /// The Q value (and with an outcome head the outcome logit) of each item at its own
+    /// heightmap pixel: what [`Self::q_and_outcome_maps`] gives there, read off the
+    /// low-resolution maps with the rotation back and the upsampling folded into at most
+    /// 16 weights per item, so the learner neither forms nor differentiates the full maps.
+    pub fn at_pixels(
+        &self,
+        primitive: Primitive,
+        items: &[(&NetInput, u8)],
+        pixels: &[(usize, usize)],
+        geometry: &Geometry,
+    ) -> Result<(Tensor<1>, Option<Tensor<1>>), QNetError> {
+        assert_eq!(items.len(), pixels.len(), "one pixel per item");
+        let side = geometry.side();
+        if let Some(&(row, col)) = pixels.iter().find(|&&(r, c)| r >= side || c >= side) {
+            return Err(QNetError::Pixel { row, col, side });
+        }
+        let (low, turns) = self.low_maps(primitive, items, geometry, true)?;
+        let [n, heads, s, _] = low.dims();
+        let mut weights = vec![0.0; n * s * s];
+        for ((item, &turn), &pixel) in weights.chunks_exact_mut(s * s).zip(&turns).zip(pixels) {
+            geometry.add_pixel_weights(turn, pixel, item);
+        }
+        let weights = Tensor::<4>::from_data(TensorData::new(weights, [n, 1, s, s]), &low.device());
+        let values = (low * weights).sum_dim(3).sum_dim(2).reshape([n, heads]);
+        let head = |h: usize| values.clone().slice([0..n, h..h + 1]).reshape([n]);
+        Ok((head(0), (heads == 2).then(|| head(1))))
+    }
+
     /// The maps `[n, channels, side, side]` of one primitive's items: the Q value's, then
-    /// with `outcome` the outcome logit's when the net has that head. Items that differ only
-    /// by quarter turns of the action share one pass of an equivariant net.
+    /// with `outcome` the outcome logit's when the net has that head.
     fn maps(
         &self,
         primitive: Primitive,
@@ -102,9 +130,43 @@ impl QNets {
         geometry: &Geometry,
         outcome: bool,
     ) -> Result<Tensor<4>, QNetError> {
+        let (low, turns) = self.low_maps(primitive, items, geometry, outcome)?;
+        let [n, heads, s, _] = low.dims();
+        let grid = Tensor::<4>::from_data(
+            TensorData::new(geometry.back_grid(&turns), [n, s, s, 2]),
+            &low.device(),
+        );
+        let back = low.grid_sample_2d(
+            grid,
+            GridSampleOptions::new(InterpolateMode::Bilinear)
+                .with_padding_mode(GridSamplePaddingMode::Border)
+                .with_align_corners(false),
+        );
+        let p = geometry.padded();
+        let full = interpolate(
+            back,
+            InterpolateOptions::new(InterpolateMode::Bilinear)
+                .with_align_corners(false)
+                .with_output_size([p, p]),
+        );
+        let (o, side) = (geometry.offset(), geometry.side());
+        Ok(full.slice([0..n, 0..heads, o..o + side, o..o + side]))
+    }
+
+    /// The low-resolution maps `[n, channels, s, s]` of one primitive's items, each still
+    /// in its input rotation's frame, and that rotation per item (what rotates it back).
+    /// Items that differ only by quarter turns of the action share one pass of an
+    /// equivariant net.
+    fn low_maps(
+        &self,
+        primitive: Primitive,
+        items: &[(&NetInput, u8)],
+        geometry: &Geometry,
+        outcome: bool,
+    ) -> Result<(Tensor<4>, Vec<u8>), QNetError> {
         let device = self.device();
         let net = self.net(primitive);
-        let (p, s, side) = (geometry.padded(), geometry.low_side(), geometry.side());
+        let (p, s) = (geometry.padded(), geometry.low_side());
         // The passes (input, input rotation) and each item's (pass, output channel).
         let mut passes: Vec<(&NetInput, u8)> = Vec::new();
         let mut picks = Vec::with_capacity(items.len());
@@ -118,11 +180,16 @@ impl QNets {
             });
             picks.push((pass, channel));
         }
-        let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
-        for &(input, turn) in &passes {
-            geometry.rotate_input(input, turn, [&mut colour, &mut depth, &mut mask]);
-        }
-        let m = passes.len();
+        let (m, area) = (passes.len(), p * p);
+        let [mut colour, mut depth, mut mask] = [3, 1, 1].map(|c| vec![0.0; m * c * area]);
+        colour
+            .par_chunks_mut(3 * area)
+            .zip(depth.par_chunks_mut(area))
+            .zip(mask.par_chunks_mut(area))
+            .zip(&passes)
+            .for_each(|(((colour, depth), mask), &(input, turn))| {
+                geometry.rotate_input_into(input, turn, [colour, depth, mask]);
+            });
         let plane = |values: Vec<f32>, channels: usize| {
             Tensor::<4>::from_data(TensorData::new(values, [m, channels, p, p]), &device)
         };
@@ -132,8 +199,7 @@ impl QNets {
         } else {
             net.forward(planes.0, planes.1, planes.2)
         };
-        // Each item's channel of each head (Q, then outcome), rotated back by its pass's
-        // input rotation.
+        // Each item's channel of each head (Q, then outcome).
         let channels = low.dims()[1];
         let heads = channels / net.group();
         let rows: Vec<i64> = picks
@@ -147,25 +213,8 @@ impl QNets {
             .reshape([m * channels, s, s])
             .select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
             .reshape([n, heads, s, s]);
-        let turns: Vec<u8> = picks.iter().map(|&(pass, _)| passes[pass].1).collect();
-        let grid = Tensor::<4>::from_data(
-            TensorData::new(geometry.back_grid(&turns), [n, s, s, 2]),
-            &device,
-        );
-        let back = low.grid_sample_2d(
-            grid,
-            GridSampleOptions::new(InterpolateMode::Bilinear)
-                .with_padding_mode(GridSamplePaddingMode::Border)
-                .with_align_corners(false),
-        );
-        let full = interpolate(
-            back,
-            InterpolateOptions::new(InterpolateMode::Bilinear)
-                .with_align_corners(false)
-                .with_output_size([p, p]),
-        );
-        let o = geometry.offset();
-        Ok(full.slice([0..n, 0..heads, o..o + side, o..o + side]))
+        let turns = picks.iter().map(|&(pass, _)| passes[pass].1).collect();
+        Ok((low, turns))
     }
 
     /// Q maps of one primitive for all rotations, as the actor's plain arrays.
@@ -229,8 +278,104 @@ impl QNets {
 #[cfg(test)]
 mod tests {
     use burn::module::Param;
+    use burn::tensor::Distribution;
 
     use super::*;
+    use crate::testing::assert_close;
+
+    #[test]
+    fn values_at_pixels_and_their_gradients_are_the_full_maps_at_those_pixels() {
+        let side = 24;
+        let plane = |planes: usize| {
+            let n = planes * side * side;
+            (0..n)
+                .map(|i| ((i * 7919) % 101) as f32 / 50.0 - 1.0)
+                .collect()
+        };
+        let input = NetInput {
+            side,
+            colour: plane(3),
+            depth: plane(1),
+            mask: plane(1)
+                .into_iter()
+                .map(|v: f32| f32::from(v > 0.0))
+                .collect(),
+        };
+        // The corners and edges (the upsampling and the rotation back clamp there) and
+        // rotations in every quadrant.
+        let rotations = [0u8, 3, 5, 8, 13, 15];
+        let pixels = [(0, 0), (23, 23), (5, 17), (12, 0), (23, 6), (11, 11)];
+        let items: Vec<(&NetInput, u8)> = rotations.iter().map(|&k| (&input, k)).collect();
+        for rotation_equivariant in [false, true] {
+            let config = QNetConfig {
+                trunk_widths: vec![4, 8],
+                head_width: 8,
+                grasp_outcome_head: true,
+                rotation_equivariant,
+                ..QNetConfig::default()
+            };
+            let device = Device::flex().autodiff();
+            let nets = QNets::new(&config, &device).train();
+            let geometry = Geometry::new(side, &config);
+            let what = |part: &str| format!("equivariant {rotation_equivariant}: {part}");
+            let coefficients = |seed| {
+                Tensor::<1>::random([items.len()], Distribution::Default, &device).add_scalar(seed)
+            };
+            let (a, b) = (coefficients(0.5), coefficients(1.0));
+            // What the learner differentiated before: the full maps masked at the pixels.
+            let (maps, logits) = nets
+                .q_and_outcome_maps(Primitive::Grasp, &items, &geometry)
+                .unwrap();
+            let mut one_hot = vec![0.0; items.len() * side * side];
+            for (j, &(row, col)) in pixels.iter().enumerate() {
+                one_hot[(j * side + row) * side + col] = 1.0;
+            }
+            let one_hot = Tensor::<3>::from_data(
+                TensorData::new(one_hot, [items.len(), side, side]),
+                &device,
+            );
+            let pick = |maps: Tensor<3>| {
+                (maps * one_hot.clone())
+                    .sum_dim(2)
+                    .sum_dim(1)
+                    .flatten::<1>(0, 2)
+            };
+            let full = (pick(maps), pick(logits.unwrap()));
+            let direct = nets
+                .at_pixels(Primitive::Grasp, &items, &pixels, &geometry)
+                .unwrap();
+            let direct = (direct.0, direct.1.unwrap());
+            let values = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
+            assert_close(
+                &values(direct.0.clone()),
+                &values(full.0.clone()),
+                1e-5,
+                &what("Q"),
+            );
+            assert_close(
+                &values(direct.1.clone()),
+                &values(full.1.clone()),
+                1e-5,
+                &what("logit"),
+            );
+            let loss =
+                |(q, logit): (Tensor<1>, Tensor<1>)| (q * a.clone() + logit * b.clone()).sum();
+            let (direct, full) = (loss(direct).backward(), loss(full).backward());
+            let net = &nets.grasp;
+            let outcome = net.outcome_out.as_ref().unwrap();
+            for (part, weight) in [
+                (
+                    "the trunk's first convolution",
+                    &net.colour.blocks[0].conv.weight,
+                ),
+                ("the Q output", &net.head_out.weight),
+                ("the outcome output", &outcome.weight),
+            ] {
+                let grad = |grads| values(weight.val().grad(grads).unwrap().flatten::<1>(0, 3));
+                assert_close(&grad(&direct), &grad(&full), 1e-4, &what(part));
+            }
+        }
+    }
 
     #[test]
     fn weights_with_biases_before_a_batch_norm_are_refused_saying_why() {
