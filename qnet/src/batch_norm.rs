@@ -8,7 +8,6 @@
 //! running statistics and their update), so checkpoints and the inference path do not
 //! change.
 
-use std::mem::MaybeUninit;
 
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -24,6 +23,7 @@ use burn::tensor::{DType, Slice};
 
 use rayon::prelude::*;
 
+use crate::fresh::planes_from;
 use crate::gemm_conv::flex_tensor;
 
 /// The operation on a backend: inputs `[n, c, ...]`, per-channel `gamma` and `beta`, and
@@ -101,28 +101,6 @@ fn lane_sum(a: &[f32], b: &[f32], f: impl Fn(f32, f32) -> f32) -> f64 {
         }
     }
     lanes.iter().map(|&v| v as f64).sum::<f64>() + tail
-}
-
-/// `len` values made a plane of `m` at a time, in parallel: `fill(p, slots)` writes every
-/// slot of plane `p`. Written once into fresh memory, without zeroing it first (a pass over
-/// megabytes that the values overwrite anyway); `len` must be a multiple of `m`.
-fn planes_from(
-    len: usize,
-    m: usize,
-    fill: impl Fn(usize, &mut [MaybeUninit<f32>]) + Sync,
-) -> Vec<f32> {
-    assert!(
-        m > 0 && len.is_multiple_of(m),
-        "{len} values in planes of {m}"
-    );
-    let mut out: Vec<f32> = Vec::with_capacity(len);
-    out.spare_capacity_mut()
-        .par_chunks_mut(m)
-        .enumerate()
-        .for_each(|(plane, slots)| fill(plane, slots));
-    // SAFETY: `fill` wrote every slot of each of the `len / m` planes.
-    unsafe { out.set_len(len) };
-    out
 }
 
 /// Plane `p` of `m` values of `values`.

@@ -28,6 +28,8 @@ use burn::prelude::*;
 use burn::tensor::{DType, IndexingUpdateOp, Shape, Slice, TensorData};
 use rayon::prelude::*;
 
+use crate::fresh::{planes_from, slots_ptr, zeroed};
+
 /// Where a square kernel's taps fall: its size, stride, dilation and zero padding.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Taps {
@@ -449,25 +451,26 @@ impl ConvBackend for Flex {
         let (input, weights): (&[f32], &[f32]) = (x.storage(), weight.storage());
         let (side, depth) = (taps.out_side(h), c * taps.per_channel());
         let pixels = side * side;
-        let mut out = vec![0.0f32; n * o * pixels];
-        out.par_chunks_mut(o * pixels)
-            .zip(input.par_chunks(c * h * h))
-            .for_each(|(y, item)| {
-                for_each_band(item, h, &taps, |rows, band| {
-                    let (first, cols) = (rows.start, rows.len() * side);
-                    // SAFETY: `y[.., first * side..]` is `o x cols` with row stride `pixels`,
-                    // `weights` `o x depth`, `band` `depth x cols`.
-                    unsafe {
-                        multiply(
-                            [o, cols, depth],
-                            (y.as_mut_ptr().add(first * side), pixels as isize, 1),
-                            false,
-                            View::rows(weights.as_ptr(), depth),
-                            View::rows(band.as_ptr(), cols),
-                        );
-                    }
-                });
+        // The bands cover every output row and the product overwrites them, so the output
+        // needs no zeroing.
+        let out = planes_from(n * o * pixels, o * pixels, |i, y| {
+            let item = &input[i * c * h * h..(i + 1) * c * h * h];
+            let y = slots_ptr(y);
+            for_each_band(item, h, &taps, |rows, band| {
+                let (first, cols) = (rows.start, rows.len() * side);
+                // SAFETY: `y[.., first * side..]` is `o x cols` with row stride `pixels`,
+                // `weights` `o x depth`, `band` `depth x cols`.
+                unsafe {
+                    multiply(
+                        [o, cols, depth],
+                        (y.add(first * side), pixels as isize, 1),
+                        false,
+                        View::rows(weights.as_ptr(), depth),
+                        View::rows(band.as_ptr(), cols),
+                    );
+                }
             });
+        });
         flex_tensor(out, [n, o, side, side])
     }
 
@@ -497,36 +500,34 @@ impl ConvBackend for Flex {
         let (grads, weights): (&[f32], &[f32]) = (grad.storage(), weight.storage());
         let (pixels, depth, per_channel) =
             (side * side, c * taps.per_channel(), taps.per_channel());
-        let mut planes = vec![0.0f32; n * c * h * h];
-        planes
-            .par_chunks_mut(c * h * h)
-            .zip(grads.par_chunks(o * pixels))
-            .for_each(|(item, dy)| {
-                BAND.with_borrow_mut(|band| {
-                    for rows in bands(depth, side) {
-                        let (first, cols) = (rows.start, rows.len() * side);
-                        band.resize(depth * cols, 0.0);
-                        // SAFETY: `band` is `depth x cols`; the weights' transpose is `depth x
-                        // o` (row stride 1, column stride `depth`); `dy[.., first * side..]`
-                        // is `o x cols` with row stride `pixels`.
-                        unsafe {
-                            multiply(
-                                [depth, cols, o],
-                                (band.as_mut_ptr(), cols as isize, 1),
-                                false,
-                                View::columns(weights.as_ptr(), depth),
-                                View::rows(dy.as_ptr().add(first * side), pixels),
-                            );
-                        }
-                        for (plane, columns) in item
-                            .chunks_exact_mut(h * h)
-                            .zip(band.chunks_exact(per_channel * cols))
-                        {
-                            fold_channel(columns, h, &taps, rows.clone(), plane);
-                        }
+        // Folding adds into each item's planes: zeroed by the thread that folds them.
+        let planes = planes_from(n * c * h * h, c * h * h, |i, item| {
+            let (item, dy) = (zeroed(item), &grads[i * o * pixels..(i + 1) * o * pixels]);
+            BAND.with_borrow_mut(|band| {
+                for rows in bands(depth, side) {
+                    let (first, cols) = (rows.start, rows.len() * side);
+                    band.resize(depth * cols, 0.0);
+                    // SAFETY: `band` is `depth x cols`; the weights' transpose is `depth x
+                    // o` (row stride 1, column stride `depth`); `dy[.., first * side..]`
+                    // is `o x cols` with row stride `pixels`.
+                    unsafe {
+                        multiply(
+                            [depth, cols, o],
+                            (band.as_mut_ptr(), cols as isize, 1),
+                            false,
+                            View::columns(weights.as_ptr(), depth),
+                            View::rows(dy.as_ptr().add(first * side), pixels),
+                        );
                     }
-                });
+                    for (plane, columns) in item
+                        .chunks_exact_mut(h * h)
+                        .zip(band.chunks_exact(per_channel * cols))
+                    {
+                        fold_channel(columns, h, &taps, rows.clone(), plane);
+                    }
+                }
             });
+        });
         flex_tensor(planes, [n, c, h, h])
     }
 

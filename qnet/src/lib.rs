@@ -16,6 +16,7 @@ pub mod config;
 pub mod device;
 pub mod equivariant;
 pub mod error;
+mod fresh;
 pub mod gemm_conv;
 pub mod geometry;
 pub mod inference;

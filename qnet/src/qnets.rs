@@ -9,7 +9,6 @@ use burn::tensor::module::interpolate;
 use burn::tensor::ops::{
     GridSampleOptions, GridSamplePaddingMode, InterpolateMode, InterpolateOptions,
 };
-use rayon::prelude::*;
 use sim::Primitive;
 
 use policy::QMaps;
@@ -18,6 +17,7 @@ use crate::acting::every_rotation;
 use crate::config::QNetConfig;
 use crate::equivariant;
 use crate::error::QNetError;
+use crate::fresh::zeroed_triple;
 use crate::geometry::Geometry;
 use crate::input::NetInput;
 use crate::net::PrimitiveNet;
@@ -181,15 +181,10 @@ impl QNets {
             picks.push((pass, channel));
         }
         let (m, area) = (passes.len(), p * p);
-        let [mut colour, mut depth, mut mask] = [3, 1, 1].map(|c| vec![0.0; m * c * area]);
-        colour
-            .par_chunks_mut(3 * area)
-            .zip(depth.par_chunks_mut(area))
-            .zip(mask.par_chunks_mut(area))
-            .zip(&passes)
-            .for_each(|(((colour, depth), mask), &(input, turn))| {
-                geometry.rotate_input_into(input, turn, [colour, depth, mask]);
-            });
+        let [colour, depth, mask] = zeroed_triple(m, [3 * area, area, area], |i, planes| {
+            let (input, turn) = passes[i];
+            geometry.rotate_input_into(input, turn, planes);
+        });
         let plane = |values: Vec<f32>, channels: usize| {
             Tensor::<4>::from_data(TensorData::new(values, [m, channels, p, p]), &device)
         };
