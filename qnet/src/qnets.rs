@@ -204,10 +204,16 @@ impl QNets {
             })
             .collect();
         let n = items.len();
-        let low = low
-            .reshape([m * channels, s, s])
-            .select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
-            .reshape([n, heads, s, s]);
+        // Every pass's every channel in order (an ordinary net, no two items sharing a pass)
+        // needs no selection, nor its scatter back in the backward.
+        let everything = rows.iter().copied().eq(0..(m * channels) as i64);
+        let low = if everything {
+            low
+        } else {
+            low.reshape([m * channels, s, s])
+                .select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
+                .reshape([n, heads, s, s])
+        };
         let turns = picks.iter().map(|&(pass, _)| passes[pass].1).collect();
         Ok((low, turns))
     }
