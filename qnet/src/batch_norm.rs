@@ -8,7 +8,6 @@
 //! running statistics and their update), so checkpoints and the inference path do not
 //! change.
 
-
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
