@@ -1,7 +1,7 @@
 //! Fresh output buffers written in parallel. A zeroed `Vec` is one serial pass over megabytes
-//! on the thread that asks for it before the parallel work starts (a tenth of a training
-//! step's calling thread); here each chunk is written, or zeroed first where its writer only
-//! adds, by the thread that fills it, while it is in that core's cache.
+//! on the thread that asks for it, before the parallel work starts (a tenth of the time of
+//! the thread that runs a training step); here each chunk is written, or zeroed first where
+//! its writer only adds, by the thread that fills it, while it is in that core's cache.
 
 use std::mem::MaybeUninit;
 

@@ -459,7 +459,8 @@ impl ConvBackend for Flex {
             for_each_band(item, h, &taps, |rows, band| {
                 let (first, cols) = (rows.start, rows.len() * side);
                 // SAFETY: `y[.., first * side..]` is `o x cols` with row stride `pixels`,
-                // `weights` `o x depth`, `band` `depth x cols`.
+                // `weights` `o x depth`, `band` `depth x cols`; not accumulating, the
+                // product only writes `y`, never reads its uninitialised values.
                 unsafe {
                     multiply(
                         [o, cols, depth],
