@@ -57,11 +57,6 @@ pub(crate) fn zeroed(slots: &mut [MaybeUninit<f32>]) -> &mut [f32] {
     unsafe { &mut *(std::ptr::from_mut(slots) as *mut [f32]) }
 }
 
-/// The values of slots that will be written through a raw pointer.
-pub(crate) fn slots_ptr(slots: &mut [MaybeUninit<f32>]) -> *mut f32 {
-    slots.as_mut_ptr().cast()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

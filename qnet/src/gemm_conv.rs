@@ -28,7 +28,7 @@ use burn::prelude::*;
 use burn::tensor::{DType, IndexingUpdateOp, Shape, Slice, TensorData};
 use rayon::prelude::*;
 
-use crate::fresh::{planes_from, slots_ptr, zeroed};
+use crate::fresh::{planes_from, zeroed};
 
 /// Where a square kernel's taps fall: its size, stride, dilation and zero padding.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -455,7 +455,7 @@ impl ConvBackend for Flex {
         // needs no zeroing.
         let out = planes_from(n * o * pixels, o * pixels, |i, y| {
             let item = &input[i * c * h * h..(i + 1) * c * h * h];
-            let y = slots_ptr(y);
+            let y = y.as_mut_ptr().cast::<f32>();
             for_each_band(item, h, &taps, |rows, band| {
                 let (first, cols) = (rows.start, rows.len() * side);
                 // SAFETY: `y[.., first * side..]` is `o x cols` with row stride `pixels`,

@@ -319,8 +319,9 @@ mod tests {
             let nets = QNets::new(&config, &device).train();
             let geometry = Geometry::new(side, &config);
             let what = |part: &str| format!("equivariant {rotation_equivariant}: {part}");
-            let coefficients = |seed| {
-                Tensor::<1>::random([items.len()], Distribution::Default, &device).add_scalar(seed)
+            let coefficients = |offset| {
+                Tensor::<1>::random([items.len()], Distribution::Default, &device)
+                    .add_scalar(offset)
             };
             let (a, b) = (coefficients(0.5), coefficients(1.0));
             // What the learner differentiated before: the full maps masked at the pixels.
