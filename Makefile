@@ -16,15 +16,17 @@ run:
 # software one (lavapipe) where there is no GPU, installed first when it is missing (as root
 # with apt-get); without one the CPU build's tests run alone, saying so. The MCAP files are
 # also read back by the independent Python reader, installed into target/ when Python is
-# there (the tests say so and skip that check when it is not).
+# there (the tests say so and skip that check when it is not). `--tests` runs every unit and
+# integration test; it leaves out doc tests, of which the workspace has none, and which would
+# have rustdoc check all 18 crates again to find that out (two minutes on two cores).
 MCAP_VENV := target/mcap-venv
 test:
 	test -x $(MCAP_VENV)/bin/python3 || { python3 -m venv $(MCAP_VENV) && $(MCAP_VENV)/bin/python3 -m pip install -q mcap mcap-protobuf-support; } || echo "the Python mcap reader is not installed: its cross-check is skipped"
 	if tests/vulkan/install.sh; then \
-		$(CARGO) test --release --workspace --features pushgrasp/wgpu; \
+		$(CARGO) test --release --workspace --tests --features pushgrasp/wgpu; \
 	else \
 		echo "no Vulkan device: the GPU path's tests are skipped"; \
-		$(CARGO) test --release --workspace; \
+		$(CARGO) test --release --workspace --tests; \
 	fi
 
 # The GPU path's tests alone.
