@@ -11,7 +11,7 @@ run:
 	$(CARGO) run --release -- train --config configs/stage1.toml
 
 # Every test, built optimised (physics in an unoptimised build is too slow to test), in one
-# build with the GPU backend (burn-wgpu; ~30 minutes on two cores the first time): the CPU
+# build with the GPU backend (burn-wgpu; 35-55 minutes on two cores the first time): the CPU
 # path's tests, and the GPU path's (tests/wgpu.rs) on this machine's Vulkan device, Mesa's
 # software one (lavapipe) where there is no GPU, installed first when it is missing (as root
 # with apt-get); without one the CPU build's tests run alone, saying so. The MCAP files are
