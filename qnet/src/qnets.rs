@@ -204,16 +204,16 @@ impl QNets {
             })
             .collect();
         let n = items.len();
-        // Every pass's every channel in order (an ordinary net, no two items sharing a pass)
-        // needs no selection, nor its scatter back in the backward.
-        let everything = rows.iter().copied().eq(0..(m * channels) as i64);
-        let low = if everything {
+        // Every pass's every channel in order (an ordinary net's batch, or an equivariant
+        // pass asked for its quarter turns in order) needs no selection, nor its scatter
+        // back in the backward: only its channels regrouped per item.
+        let low = low.reshape([m * channels, s, s]);
+        let low = if rows.iter().copied().eq(0..(m * channels) as i64) {
             low
         } else {
-            low.reshape([m * channels, s, s])
-                .select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
-                .reshape([n, heads, s, s])
+            low.select(0, Tensor::<1, Int>::from_ints(rows.as_slice(), &device))
         };
+        let low = low.reshape([n, heads, s, s]);
         let turns = picks.iter().map(|&(pass, _)| passes[pass].1).collect();
         Ok((low, turns))
     }
@@ -377,6 +377,43 @@ mod tests {
                 assert_close(&grad(&direct), &grad(&full), 1e-4, &what(part));
             }
         }
+    }
+
+    #[test]
+    fn an_equivariant_pass_asked_for_all_its_channels_in_order_gives_one_map_per_item() {
+        let side = 16;
+        let plane = |planes: usize| {
+            (0..planes * side * side)
+                .map(|i| ((i * 31) % 17) as f32 / 8.0 - 1.0)
+                .collect()
+        };
+        let input = NetInput {
+            side,
+            colour: plane(3),
+            depth: plane(1),
+            mask: plane(1),
+        };
+        let config = QNetConfig {
+            trunk_widths: vec![4, 8],
+            head_width: 8,
+            rotation_equivariant: true,
+            ..QNetConfig::default()
+        };
+        let nets = QNets::new(&config, &Device::flex());
+        let geometry = Geometry::new(side, &config);
+        // Rotations a quarter turn apart: one pass, its four channels in order.
+        let together = nets
+            .rotations(Primitive::Grasp, &input, &[0, 4, 8, 12], &geometry)
+            .unwrap();
+        let apart: Vec<f32> = [0u8, 4, 8, 12]
+            .iter()
+            .flat_map(|&k| {
+                nets.rotations(Primitive::Grasp, &input, &[k], &geometry)
+                    .unwrap()
+            })
+            .collect();
+        assert_eq!(together.len(), 4 * side * side);
+        assert_close(&together, &apart, 1e-5, "four channels of one pass");
     }
 
     #[test]
