@@ -87,10 +87,12 @@ impl Agent {
         rng: &mut ChaCha8Rng,
     ) -> Result<Choice, AgentError> {
         let input = NetInput::encode(obs, goal);
-        let grasp = self.q_maps(Primitive::Grasp, &input)?;
-        let push = match self.mode {
-            Mode::PushGrasp => Some(self.q_maps(Primitive::Push, &input)?),
-            Mode::GraspOnly => None,
+        let (grasp, push) = match self.mode {
+            Mode::PushGrasp => {
+                let [grasp, push] = self.q_maps_of([Primitive::Grasp, Primitive::Push], &input)?;
+                (grasp, Some(push))
+            }
+            Mode::GraspOnly => (self.q_maps(Primitive::Grasp, &input)?, None),
         };
         let policy_input = PolicyInput {
             obs,
@@ -109,19 +111,33 @@ impl Agent {
 
     /// One primitive's Q maps for all rotations: `nets`' alone, or the mean over the ensemble.
     pub fn q_maps(&self, primitive: Primitive, input: &NetInput) -> Result<QMaps, AgentError> {
-        let maps = self
+        let [maps] = self.q_maps_of([primitive], input)?;
+        Ok(maps)
+    }
+
+    /// [`Agent::q_maps`] of each of `primitives`, each net rotating the input once for all.
+    fn q_maps_of<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        input: &NetInput,
+    ) -> Result<[QMaps; N], AgentError> {
+        let mut maps = self
             .acting
-            .all_rotations(primitive, input, &self.geometry)?;
+            .all_rotations_of(primitives, input, &self.geometry)?;
         if self.ensemble.is_empty() {
             return Ok(maps);
         }
-        let mut sum = maps.values().to_vec();
         for nets in &self.ensemble {
-            let more = nets.all_rotations(primitive, input, &self.geometry)?;
-            sum.iter_mut().zip(more.values()).for_each(|(s, q)| *s += q);
+            let more = nets.all_rotations_of(primitives, input, &self.geometry)?;
+            for (sum, more) in maps.iter_mut().zip(&more) {
+                let sum = sum.values_mut().iter_mut();
+                sum.zip(more.values()).for_each(|(s, q)| *s += q);
+            }
         }
         let members = (1 + self.ensemble.len()) as f32;
-        sum.iter_mut().for_each(|s| *s /= members);
-        Ok(QMaps::new(maps.rotations(), maps.side(), sum)?)
+        for mean in &mut maps {
+            mean.values_mut().iter_mut().for_each(|s| *s /= members);
+        }
+        Ok(maps)
     }
 }

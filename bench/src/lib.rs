@@ -341,13 +341,17 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
                     .collect(),
             )
         };
-        // What the actors run, and burn's own forward of the same nets beside it (on a GPU
-        // the actors run burn's forward: timed once).
-        let infer = both(&|primitive| {
-            acting
-                .all_rotations(primitive, &input, &geometry)
-                .expect("inference");
-        });
+        // What the actors run (both nets on each rotated input), and burn's own forward of
+        // the same nets beside it (on a GPU the actors run burn's forward: timed once).
+        let infer = median(
+            (0..reps)
+                .map(|_| {
+                    let primitives = [Primitive::Push, Primitive::Grasp];
+                    let run = || acting.all_rotations_of(primitives, &input, &geometry);
+                    ms(timed(|| run().expect("inference")).1)
+                })
+                .collect(),
+        );
         let burn_infer = match &acting {
             ActingNets::Cpu(_) => both(&|primitive| {
                 nets.all_rotations(primitive, &input, &geometry)

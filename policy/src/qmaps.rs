@@ -47,6 +47,12 @@ impl QMaps {
         &self.values
     }
 
+    /// The values to change in place (an ensemble's mean, say); their layout is
+    /// [`QMaps::values`]'.
+    pub fn values_mut(&mut self) -> &mut [f32] {
+        &mut self.values
+    }
+
     /// The Q value of the action at `rotation`, `row`, `col`.
     ///
     /// Panics if any index is out of range (checked one by one, so a row past the edge cannot

@@ -43,6 +43,22 @@ impl ActingNets {
         }
     }
 
+    /// Q maps of each of `primitives` for all rotations; in the CPU's inference form each
+    /// input rotation is computed once for all of them.
+    pub fn all_rotations_of<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        input: &NetInput,
+        geometry: &Geometry,
+    ) -> Result<[QMaps; N], QNetError> {
+        match self {
+            ActingNets::Cpu(inference) => inference.all_rotations_of(primitives, input, geometry),
+            ActingNets::Device(nets) => try_map(primitives, |primitive| {
+                nets.all_rotations(primitive, input, geometry)
+            }),
+        }
+    }
+
     /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
     pub fn rotations(
         &self,
@@ -60,12 +76,25 @@ impl ActingNets {
     }
 }
 
-/// The maps of every rotation as [`QMaps`], from a function giving the maps of the rotations
-/// asked for.
-pub(crate) fn every_rotation(
+/// The maps of every rotation as [`QMaps`], for each of `N` primitives, from a function giving
+/// each one's maps of the rotations asked for.
+pub(crate) fn every_rotation<const N: usize>(
     geometry: &Geometry,
-    maps: impl FnOnce(&[u8]) -> Result<Vec<f32>, QNetError>,
-) -> Result<QMaps, QNetError> {
+    maps: impl FnOnce(&[u8]) -> Result<[Vec<f32>; N], QNetError>,
+) -> Result<[QMaps; N], QNetError> {
     let rotations: Vec<u8> = (0..ROTATIONS).collect();
-    Ok(QMaps::new(ROTATIONS, geometry.side(), maps(&rotations)?)?)
+    try_map(maps(&rotations)?, |values| {
+        Ok(QMaps::new(ROTATIONS, geometry.side(), values)?)
+    })
+}
+
+/// `items` through `f`, stopping at the first error (arrays' own `try_map` is unstable).
+fn try_map<A, B, const N: usize>(
+    items: [A; N],
+    f: impl FnMut(A) -> Result<B, QNetError>,
+) -> Result<[B; N], QNetError> {
+    let all: Vec<B> = items.into_iter().map(f).collect::<Result<_, _>>()?;
+    Ok(all
+        .try_into()
+        .unwrap_or_else(|_| unreachable!("as many out as in")))
 }

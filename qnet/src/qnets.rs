@@ -225,9 +225,10 @@ impl QNets {
         input: &NetInput,
         geometry: &Geometry,
     ) -> Result<QMaps, QNetError> {
-        every_rotation(geometry, |rotations| {
-            self.rotations(primitive, input, rotations, geometry)
-        })
+        let [maps] = every_rotation(geometry, |rotations| {
+            Ok([self.rotations(primitive, input, rotations, geometry)?])
+        })?;
+        Ok(maps)
     }
 
     /// The Q maps of one primitive at `rotations`, one `side x side` map after another.

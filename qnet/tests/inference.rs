@@ -39,7 +39,23 @@ fn agrees(config: &QNetConfig, pixel_size: f32) {
     let geometry = Geometry::new(input.side, config);
     let nets = trained_nets(config, &geometry, &input);
     let inference = Inference::new(&nets).unwrap();
-    for primitive in [Primitive::Push, Primitive::Grasp] {
+    // What an actor that pushes runs: both nets on each rotated input, which must give
+    // exactly the maps of each net run alone.
+    let primitives = [Primitive::Push, Primitive::Grasp];
+    let both = inference
+        .all_rotations_of(primitives, &input, &geometry)
+        .unwrap();
+    for (primitive, together) in primitives.into_iter().zip(&both) {
+        let alone = inference
+            .all_rotations(primitive, &input, &geometry)
+            .unwrap();
+        assert_eq!(
+            together.values(),
+            alone.values(),
+            "{config:?} {primitive:?}"
+        );
+    }
+    for primitive in primitives {
         let want = nets.all_rotations(primitive, &input, &geometry).unwrap();
         let got = inference
             .all_rotations(primitive, &input, &geometry)

@@ -92,8 +92,21 @@ impl Inference {
         input: &NetInput,
         geometry: &Geometry,
     ) -> Result<QMaps, QNetError> {
+        let [maps] = self.all_rotations_of([primitive], input, geometry)?;
+        Ok(maps)
+    }
+
+    /// Q maps of each of `primitives` for all rotations, as [`Inference::all_rotations`]
+    /// gives them one at a time. Each input rotation is computed once for all of them: an
+    /// actor that pushes scores both nets on every decision.
+    pub fn all_rotations_of<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        input: &NetInput,
+        geometry: &Geometry,
+    ) -> Result<[QMaps; N], QNetError> {
         every_rotation(geometry, |rotations| {
-            self.rotations(primitive, input, rotations, geometry)
+            self.rotations_of(primitives, input, rotations, geometry)
         })
     }
 
@@ -105,17 +118,35 @@ impl Inference {
         rotations: &[u8],
         geometry: &Geometry,
     ) -> Result<Vec<f32>, QNetError> {
+        let [values] = self.rotations_of([primitive], input, rotations, geometry)?;
+        Ok(values)
+    }
+
+    /// [`Inference::rotations`] of each of `primitives`, every input rotation they need
+    /// computed once and run through each of their nets.
+    fn rotations_of<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        input: &NetInput,
+        rotations: &[u8],
+        geometry: &Geometry,
+    ) -> Result<[Vec<f32>; N], QNetError> {
         for &k in rotations {
             geometry.check(input, k)?;
         }
-        let net = self.net(primitive);
-        // The input rotations the rotations asked for need, each run once: its
-        // low-resolution maps, one a quarter turn of the action.
-        let turn_and_channel = |k| equivariant::pass_and_channel(k, net.group());
-        let mut turns: Vec<u8> = rotations.iter().map(|&k| turn_and_channel(k).0).collect();
+        let nets = primitives.map(|primitive| self.net(primitive));
+        // The input rotations the rotations asked for need, each run once through every net
+        // (the two nets share their shape, so they need the same ones): its low-resolution
+        // maps, one a quarter turn of the action.
+        let turn_and_channel = |net: &NetForm, k| equivariant::pass_and_channel(k, net.group());
+        let mut turns: Vec<u8> = nets
+            .iter()
+            .flat_map(|&net| rotations.iter().map(move |&k| turn_and_channel(net, k).0))
+            .collect();
         turns.sort_unstable();
         turns.dedup();
-        let lows: Vec<Vec<f32>> = turns
+        // `lows[t][i]`: net `i`'s low-resolution maps of turn `turns[t]`.
+        let lows: Vec<[Vec<f32>; N]> = turns
             .par_iter()
             .map(|&turn| {
                 WORKSPACE.with_borrow_mut(|ws| {
@@ -123,26 +154,32 @@ impl Inference {
                     let [colour, depth, mask] = &mut ws.planes;
                     geometry.rotate_input(input, turn, [colour, depth, mask]);
                     let planes = std::mem::take(&mut ws.planes);
-                    let mut low = Vec::new();
-                    net.forward(&planes, geometry.padded(), ws, &mut low);
+                    let lows = nets.map(|net| {
+                        let mut low = Vec::new();
+                        net.forward(&planes, geometry.padded(), ws, &mut low);
+                        low
+                    });
                     ws.planes = planes;
-                    low
+                    lows
                 })
             })
             .collect();
         let side = geometry.side();
         let low_area = geometry.low_side() * geometry.low_side();
-        let mut values = vec![0.0; rotations.len() * side * side];
-        values
-            .par_chunks_mut(side * side)
-            .zip(rotations)
-            .for_each(|(map, &k)| {
-                let (turn, channel) = turn_and_channel(k);
-                let low = &lows[turns.binary_search(&turn).expect("every turn was run")];
-                let low = &low[channel * low_area..(channel + 1) * low_area];
-                WORKSPACE.with_borrow_mut(|ws| rotate_back(low, turn, geometry, &mut ws.back, map));
-            });
-        Ok(values)
+        Ok(std::array::from_fn(|i| {
+            let mut values = vec![0.0; rotations.len() * side * side];
+            values
+                .par_chunks_mut(side * side)
+                .zip(rotations)
+                .for_each(|(map, &k)| {
+                    let (turn, channel) = turn_and_channel(nets[i], k);
+                    let t = turns.binary_search(&turn).expect("every turn was run");
+                    let low = &lows[t][i][channel * low_area..(channel + 1) * low_area];
+                    WORKSPACE
+                        .with_borrow_mut(|ws| rotate_back(low, turn, geometry, &mut ws.back, map));
+                });
+            values
+        }))
     }
 
     /// The low-resolution Q maps (`n x group x low_side^2`: one a quarter turn of the
