@@ -285,16 +285,15 @@ mod tests {
     use super::*;
     use crate::testing::assert_close;
 
-    #[test]
-    fn values_at_pixels_and_their_gradients_are_the_full_maps_at_those_pixels() {
-        let side = 24;
+    /// A `side x side` input of varied values in [-1, 1] with a binary mask, no scene needed.
+    fn patterned_input(side: usize) -> NetInput {
         let plane = |planes: usize| {
             let n = planes * side * side;
             (0..n)
                 .map(|i| ((i * 7919) % 101) as f32 / 50.0 - 1.0)
                 .collect()
         };
-        let input = NetInput {
+        NetInput {
             side,
             colour: plane(3),
             depth: plane(1),
@@ -302,7 +301,13 @@ mod tests {
                 .into_iter()
                 .map(|v: f32| f32::from(v > 0.0))
                 .collect(),
-        };
+        }
+    }
+
+    #[test]
+    fn values_at_pixels_and_their_gradients_are_the_full_maps_at_those_pixels() {
+        let side = 24;
+        let input = patterned_input(side);
         // The corners and edges (the upsampling and the rotation back clamp there) and
         // rotations in every quadrant.
         let rotations = [0u8, 3, 5, 8, 13, 15];
@@ -383,17 +388,7 @@ mod tests {
     #[test]
     fn an_equivariant_pass_asked_for_all_its_channels_in_order_gives_one_map_per_item() {
         let side = 16;
-        let plane = |planes: usize| {
-            (0..planes * side * side)
-                .map(|i| ((i * 31) % 17) as f32 / 8.0 - 1.0)
-                .collect()
-        };
-        let input = NetInput {
-            side,
-            colour: plane(3),
-            depth: plane(1),
-            mask: plane(1),
-        };
+        let input = patterned_input(side);
         let config = QNetConfig {
             trunk_widths: vec![4, 8],
             head_width: 8,
