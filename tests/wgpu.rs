@@ -386,7 +386,10 @@ fn a_machine_without_an_adapter_is_refused_before_anything_starts() {
         error.contains("backend.actors = \"wgpu\" (--backend)"),
         "{error}"
     );
-    assert!(error.contains("mesa-vulkan-drivers"), "{error}");
+    // What to install: the loader, NVIDIA's driver's dependency, and the software device.
+    for package in ["libvulkan1", "libglvnd0", "mesa-vulkan-drivers"] {
+        assert!(error.contains(package), "{package}: {error}");
+    }
     assert!(
         !logs.path().join("none").exists(),
         "a run directory was made"

@@ -109,8 +109,9 @@ mod gpu {
             .get_or_init(|| {
                 let (device, setup) = Device::wgpu_options().init_with_setup().map_err(|e| {
                     format!(
-                        "{e}. Install the GPU's Vulkan driver (or, for a software device, \
-                         Mesa's lavapipe: Debian's `mesa-vulkan-drivers` and `libvulkan1`), \
+                        "{e}. Install the Vulkan loader (Debian's `libvulkan1`) and the \
+                         GPU's Vulkan driver (NVIDIA's loads through libglvnd: `libglvnd0`), \
+                         or for a software device Mesa's lavapipe (`mesa-vulkan-drivers`); \
                          or use the cpu backend"
                     )
                 })?;
