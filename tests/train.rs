@@ -162,6 +162,31 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
     let summary = summary(logs.path(), "shm");
     assert_eq!(summary["actors_reports"].as_array().unwrap().len(), 2);
     assert!(assert_lossless(logs.path(), "shm") >= 16);
+    assert_cpu_times(&summary, true);
+}
+
+/// Each role in its own process reports the CPU time it used over its working time, more
+/// than none and no more than all the cores for that long; roles in threads of one process
+/// report none.
+fn assert_cpu_times(summary: &Value, own_processes: bool) {
+    let cores = std::thread::available_parallelism().unwrap().get() as f64;
+    let learner = &summary["learner"];
+    let reports = summary["actors_reports"].as_array().unwrap();
+    let timed = reports
+        .iter()
+        .filter(|r| u(&r["actions"]) > 0)
+        .map(|r| (r, "acting_s"))
+        .chain([(learner, "training_s")]);
+    for (report, working) in timed {
+        let cpu_s = report["cpu_s"].as_f64();
+        if !own_processes {
+            assert_eq!(cpu_s, None, "{report}");
+            continue;
+        }
+        let cpu_s = cpu_s.unwrap_or_else(|| panic!("no CPU time in {report}"));
+        let most = (report[working].as_f64().unwrap() + 0.1) * cores;
+        assert!(cpu_s > 0.0 && cpu_s <= most, "{cpu_s} CPU s in {report}");
+    }
 }
 
 #[test]
@@ -464,6 +489,7 @@ fn two_actor_threads_over_channels_lose_no_step() {
         ],
     );
     assert!(assert_lossless(logs.path(), "threads") >= 16);
+    assert_cpu_times(&summary(logs.path(), "threads"), false);
 }
 
 #[test]

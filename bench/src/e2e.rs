@@ -1,7 +1,9 @@
 //! `pushgrasp bench e2e`: the whole system's throughput. Real `train` runs (processes over
 //! shared memory) with 1, 2 and 4 actors; actions per second summed over the actors (each
 //! actor's actions over its own acting time, so process start-up is left out) and the
-//! learner's updates per second, read from the runs' reports.
+//! learner's updates per second, read from the runs' reports; and what an action and an
+//! update cost in CPU time (each role's process over the same time), which leaves out the
+//! time a role waits: on the rate limiter, or for a core the other roles hold.
 
 use std::path::Path;
 use std::process::Command;
@@ -49,6 +51,17 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
             format!("learner_updates_per_s_{actors}"),
             round(updates_per_s),
         );
+        let updates = learner["session_updates"].as_f64().unwrap_or(0.0);
+        let (actor_cpu_s, actions) = actors_cpu_s_and_actions(&summary);
+        let learner_cpu_s = learner["cpu_s"].as_f64().unwrap_or(0.0);
+        figures.insert(
+            format!("actor_cpu_ms_per_action_{actors}"),
+            round(1e3 * actor_cpu_s / actions.max(1.0)),
+        );
+        figures.insert(
+            format!("learner_cpu_ms_per_update_{actors}"),
+            round(1e3 * learner_cpu_s / updates.max(1.0)),
+        );
     }
     print_figures(&Value::Object(figures), args.json)
 }
@@ -92,6 +105,21 @@ pub(super) fn actions_per_s(summary: &Value) -> f64 {
         .flatten()
         .map(|r| r["actions"].as_f64().unwrap_or(0.0) / r["acting_s"].as_f64().unwrap_or(1.0))
         .sum()
+}
+
+/// The CPU seconds of a run's actors over their acting time, and their actions, summed.
+fn actors_cpu_s_and_actions(summary: &Value) -> (f64, f64) {
+    summary["actors_reports"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|r| {
+            let cpu_s = r["cpu_s"].as_f64().unwrap_or(0.0);
+            (cpu_s, r["actions"].as_f64().unwrap_or(0.0))
+        })
+        .fold((0.0, 0.0), |(c, a), (cpu_s, actions)| {
+            (c + cpu_s, a + actions)
+        })
 }
 
 pub(super) fn round(x: f64) -> Value {

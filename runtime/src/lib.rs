@@ -21,6 +21,7 @@ pub mod role;
 pub mod run_dir;
 pub mod settings;
 pub mod signals;
+pub mod stopwatch;
 pub mod supervisor;
 pub mod worker;
 
@@ -76,6 +77,11 @@ impl Lifeline {
             looked: Cell::new(None),
             stale: Cell::new(false),
         }
+    }
+
+    /// Whether the role has its process to itself (its CPU time is its own).
+    pub fn own_process(&self) -> bool {
+        self.parent.is_some()
     }
 
     pub fn lost(&self) -> bool {

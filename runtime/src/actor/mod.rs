@@ -9,8 +9,6 @@
 mod pictures;
 mod ship;
 
-use std::time::Instant;
-
 use agent::{Agent, Choice};
 use anyhow::{Context, Result};
 use experience::Transition;
@@ -25,6 +23,7 @@ use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weigh
 
 use crate::backend::open_device;
 use crate::config::RunConfig;
+use crate::stopwatch::Stopwatch;
 use crate::{Lifeline, stop_requested};
 use pictures::log_pictures;
 use ship::{Shipper, Unlabelled};
@@ -75,6 +74,10 @@ pub struct ActorReport {
     pub weights_version: u64,
     /// Seconds from the first weights received to the stop: the time `actions` took.
     pub acting_s: f64,
+    /// CPU seconds the actor's process used over `acting_s`, all its threads (none for an
+    /// actor in a thread of the launcher, whose process the other roles share).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_s: Option<f64>,
 }
 
 /// Runs episodes until the launcher says stop (or the launcher is gone); returns what it did.
@@ -104,7 +107,7 @@ pub fn run(
     if !policy.refresh(true, lifeline, &mut control)? {
         return Ok(report);
     }
-    let acting = Instant::now();
+    let acting = Stopwatch::start();
     let mut play = Play::new(config, id, log)?;
     while !lifeline.lost() && !stop_requested(&mut control, Role::Actor)? {
         policy.refresh(false, lifeline, &mut control)?;
@@ -130,7 +133,8 @@ pub fn run(
     // episode's earlier steps reach the buffer, which keeps or flushes them.
     report.steps_sent = shipper.steps_sent;
     report.weights_version = policy.version;
-    report.acting_s = acting.elapsed().as_secs_f64();
+    report.acting_s = acting.wall_s();
+    report.cpu_s = lifeline.own_process().then(|| acting.cpu_s());
     Ok(report)
 }
 

@@ -28,6 +28,7 @@ use super::backend::open_device;
 use super::config::RunConfig;
 use super::record::{LEARNER_UPDATE, UpdateRecord};
 use super::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
+use super::stopwatch::Stopwatch;
 use super::{Lifeline, STATUS_EVERY, stop_requested};
 use requests::Requests;
 
@@ -42,6 +43,10 @@ pub struct LearnerReport {
     /// Updates this process took and the seconds from its first batch to the stop.
     pub session_updates: u64,
     pub training_s: f64,
+    /// CPU seconds the learner's process used over `training_s`, all its threads (none for a
+    /// learner in a thread of the launcher, whose process the other roles share).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_s: Option<f64>,
     /// Requests the buffer answered with no items (none of their primitive stored yet).
     #[serde(default)]
     pub empty_batches: u64,
@@ -137,7 +142,7 @@ pub fn run(
             last_status = Instant::now();
         }
     }
-    role.finish(&mut ports.status)
+    role.finish(&mut ports.status, lifeline.own_process())
 }
 
 /// The learner's ends of the run's topics.
@@ -169,7 +174,7 @@ struct LearnerRole<'a> {
     /// Updates before this process started (from the checkpoint resumed).
     updates_before: u64,
     /// When the first batch arrived.
-    first_batch: Option<Instant>,
+    first_batch: Option<Stopwatch>,
     /// Added to the updates to give the weight version (after a restart, so versions keep
     /// rising past the dead learner's).
     version_offset: u64,
@@ -272,7 +277,7 @@ impl<'a> LearnerRole<'a> {
             self.report.empty_batches += 1;
             return Ok(());
         }
-        self.first_batch.get_or_insert_with(Instant::now);
+        self.first_batch.get_or_insert_with(Stopwatch::start);
         let priorities = self.train(batch)?;
         ports.requests.send(&Message::PriorityUpdate(priorities))?;
         let updates = self.updates();
@@ -411,12 +416,14 @@ impl<'a> LearnerRole<'a> {
         })
     }
 
-    /// The last checkpoint, the last report to the launcher, and what this process did.
-    fn finish(mut self, status: &mut Outbox) -> Result<LearnerReport> {
+    /// The last checkpoint, the last report to the launcher, and what this process did
+    /// (its CPU time too when it is `own_process`).
+    fn finish(mut self, status: &mut Outbox, own_process: bool) -> Result<LearnerReport> {
         self.save_checkpoint()?;
         self.report.updates = self.updates();
         self.report.session_updates = self.updates() - self.updates_before;
-        self.report.training_s = self.first_batch.map_or(0.0, |t| t.elapsed().as_secs_f64());
+        self.report.training_s = self.first_batch.map_or(0.0, |t| t.wall_s());
+        self.report.cpu_s = self.first_batch.filter(|_| own_process).map(|t| t.cpu_s());
         status.send(&self.status())?;
         Ok(self.report)
     }
