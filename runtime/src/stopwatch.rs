@@ -1,5 +1,6 @@
 //! How long a stretch of a role's work took by the wall clock, and what it cost in CPU time:
-//! the second tells a run's cost per action or update apart from how busy the machine was.
+//! the second leaves out the time the role waited (on the rate limiter, or for a core other
+//! processes held), so it gives a run's cost per action or per update.
 
 use std::time::Instant;
 
