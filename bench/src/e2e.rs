@@ -109,17 +109,11 @@ pub(super) fn actions_per_s(summary: &Value) -> f64 {
 
 /// The CPU seconds of a run's actors over their acting time, and their actions, summed.
 fn actors_cpu_s_and_actions(summary: &Value) -> (f64, f64) {
-    summary["actors_reports"]
+    let reports = summary["actors_reports"]
         .as_array()
-        .into_iter()
-        .flatten()
-        .map(|r| {
-            let cpu_s = r["cpu_s"].as_f64().unwrap_or(0.0);
-            (cpu_s, r["actions"].as_f64().unwrap_or(0.0))
-        })
-        .fold((0.0, 0.0), |(c, a), (cpu_s, actions)| {
-            (c + cpu_s, a + actions)
-        })
+        .map_or(&[][..], Vec::as_slice);
+    let sum = |key: &str| -> f64 { reports.iter().map(|r| r[key].as_f64().unwrap_or(0.0)).sum() };
+    (sum("cpu_s"), sum("actions"))
 }
 
 pub(super) fn round(x: f64) -> Value {
