@@ -35,7 +35,9 @@ test-wgpu:
 	$(CARGO) test --release --features wgpu --test wgpu
 
 # The peers run beside ours when they can be installed (into target/): onnxruntime and numpy
-# beside the nets (bench learner), cpprb beside the replay (bench buffer).
+# beside the nets (bench learner), cpprb beside the replay (bench buffer). PyTorch's training
+# step runs beside ours where it is installed there by hand (README, "Learning"): its wheel
+# brings about 5 GB of CUDA libraries.
 BENCH_VENV := target/bench-venv
 bench:
 	test -x $(BENCH_VENV)/bin/python3 || python3 -m venv $(BENCH_VENV) || echo "no Python venv: the benchmarks run without their peers"

@@ -29,7 +29,8 @@ pub enum BenchCommand {
     /// The simulator: scene settling, heightmaps, primitives, grasp and push quality.
     Sim(SimBenchArgs),
     /// The Q-networks: inference on all rotations, training steps, FLOP rates beside the
-    /// backend's matmul peak.
+    /// backend's matmul peak; onnxruntime's inference, numpy's sgemm and PyTorch's training
+    /// step of the same nets beside them.
     Learner(LearnerBenchArgs),
     /// The prioritised replay: inserts and learner steps (sample with importance-sampling
     /// weights, update priorities) at 2^17 and 2^21 slots, beside cpprb when Python has it;
@@ -66,11 +67,11 @@ pub struct LearnerBenchArgs {
     /// Time the nets of this run config's `[net]` (default: the library's default shape).
     #[arg(long)]
     config: Option<std::path::PathBuf>,
-    /// The Python that runs onnxruntime and numpy beside ours [default:
-    /// target/bench-venv/bin/python3 when it exists, else python3].
+    /// The Python that runs the peers beside ours (onnxruntime and numpy; PyTorch where
+    /// installed) [default: target/bench-venv/bin/python3 when it exists, else python3].
     #[arg(long)]
     python: Option<std::path::PathBuf>,
-    /// Leave the onnxruntime and numpy peer out.
+    /// Leave the peers out.
     #[arg(long)]
     no_peer: bool,
     /// The backend timed, `cpu` or `wgpu` (a wgpu build); on wgpu, the same nets on the CPU
@@ -314,6 +315,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     );
     let python = args.python.clone().unwrap_or_else(python::default_python);
     let (mut peer_figures, mut peer_missing) = (serde_json::Map::new(), None);
+    let (mut torch_version, mut torch_missing) = (None, None);
     for &side in &args.sides {
         let config = SimConfig::with_pixel_size(sim::workspace::SIDE / side as f32);
         let (tabletop, _) = Tabletop::random(&config, 10, 0)?;
@@ -365,13 +367,14 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         };
         put("infer_16rot_ms", infer);
         put("burn_infer_16rot_ms", burn_infer);
+        // Each pass's input rotated beforehand: what the peers run.
+        let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
+        for k in 0..passes as u8 {
+            geometry.rotate_input(&input, k, [&mut colour, &mut depth, &mut mask]);
+        }
+        let rotated = [colour.as_slice(), &depth, &mask];
         if let ActingNets::Cpu(inference) = &acting {
-            // The convolutions alone, on inputs rotated beforehand: what the peer runs.
-            let [mut colour, mut depth, mut mask] = [Vec::new(), Vec::new(), Vec::new()];
-            for k in 0..passes as u8 {
-                geometry.rotate_input(&input, k, [&mut colour, &mut depth, &mut mask]);
-            }
-            let rotated = [colour.as_slice(), &depth, &mask];
+            // The convolutions alone: what onnxruntime runs.
             let convs = both(&|primitive| {
                 inference.low_maps(primitive, rotated, &geometry);
             });
@@ -417,8 +420,10 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             succeeded: true,
         };
         let samples = |batch: usize| (0..batch).map(sample).collect::<Vec<_>>();
-        let train = train_step_ms(&mut trainer, &samples(1), reps)?;
-        let batch_train = train_step_ms(&mut trainer, &samples(8), reps)?;
+        let (train, _) = train_step_ms(&mut trainer, &samples(1), reps)?;
+        // The default learning config keeps no average: the published nets are the trained.
+        let before_batch = trainer.published_nets();
+        let (batch_train, first_batch) = train_step_ms(&mut trainer, &samples(8), reps)?;
         if backend != Backend::Cpu {
             // The same weights on the CPU: how far this device's Q maps are from the CPU's,
             // and the CPU's training step beside this device's.
@@ -435,7 +440,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             let learning = LearningConfig::default();
             let mut cpu_trainer =
                 Trainer::new(cpu_nets, &net, side, &learning, TrainedNet::Grasp, &cpu);
-            let cpu_batch_train = train_step_ms(&mut cpu_trainer, &samples(8), reps)?;
+            let (cpu_batch_train, _) = train_step_ms(&mut cpu_trainer, &samples(8), reps)?;
             put("cpu_batch_train_step_ms", cpu_batch_train);
             put("batch_train_speedup_vs_cpu", cpu_batch_train / batch_train);
         }
@@ -453,6 +458,44 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         put("gflop_per_inference", gflop_inference);
         put("achieved_gflops", gflop_batch_train / (batch_train / 1e3));
         put("inference_gflops", gflop_inference / (infer / 1e3));
+        // PyTorch's training step of the same net beside ours, on the CPU; an equivariant
+        // net's items share passes and an outcome head adds a loss, which its graph lacks.
+        if backend == Backend::Cpu && !args.no_peer {
+            let peer = if net.group() > 1 || net.grasp_outcome_head {
+                Err(anyhow::anyhow!(
+                    "the peer trains ordinary nets without an outcome head"
+                ))
+            } else {
+                let (learning, batch) = (LearningConfig::default(), samples(8));
+                let run = peer::TrainingPeerRun {
+                    net: &before_batch.grasp,
+                    rotated,
+                    geometry: &geometry,
+                    samples: &batch,
+                    learning: &learning,
+                    ours: &first_batch,
+                    reps,
+                    threads: rayon::current_num_threads(),
+                };
+                peer::torch_figures(&python, &run)
+            };
+            match peer {
+                Ok(peer) => {
+                    let figure = |key: &str| peer[key].as_f64().unwrap_or(f64::NAN);
+                    let torch_batch = figure("torch_batch_train_step_ms");
+                    put("torch_train_step_ms", figure("torch_train_step_ms"));
+                    put("torch_batch_train_step_ms", torch_batch);
+                    put("batch_train_vs_torch", batch_train / torch_batch);
+                    put(
+                        "torch_achieved_gflops",
+                        gflop_batch_train / (torch_batch / 1e3),
+                    );
+                    put("torch_max_rel_diff", figure("torch_max_rel_diff"));
+                    torch_version = peer.get("torch_version").cloned();
+                }
+                Err(why) => torch_missing = Some(format!("{why:#}")),
+            }
+        }
     }
     figures.insert(
         "matmul_peak_gflops".into(),
@@ -478,21 +521,32 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             figures.insert("onnxruntime".into(), format!("not run: {why}").into());
         }
     }
+    if let Some(version) = torch_version {
+        figures.insert("torch_version".into(), version);
+    }
+    if let Some(why) = torch_missing {
+        eprintln!(
+            "PyTorch's training step was not run ({why}); to run it beside ours (about 5 GB \
+             with its CUDA libraries):\n  target/bench-venv/bin/python3 -m pip install torch"
+        );
+        figures.insert("torch".into(), format!("not run: {why}").into());
+    }
     print_figures(&serde_json::Value::Object(figures), args.json)
 }
 
-/// The median time of `reps` training steps on `samples` (after one untimed step).
+/// The median time of `reps` training steps on `samples`, and the report of the untimed
+/// step before them.
 fn train_step_ms(
     trainer: &mut learner::Trainer,
     samples: &[learner::Sample],
     reps: usize,
-) -> Result<f64> {
-    trainer.train_step(samples)?;
+) -> Result<(f64, learner::StepReport)> {
+    let first = trainer.train_step(samples)?;
     let times = (0..reps)
         .map(|_| timed(|| trainer.train_step(samples)).1)
         .map(ms)
         .collect();
-    Ok(median(times))
+    Ok((median(times), first))
 }
 
 /// The backend's rate on a large square matrix product, the ceiling for the nets.

@@ -20,12 +20,27 @@ pub fn default_python() -> PathBuf {
     }
 }
 
-/// Runs `script` with `args`; its last line of output is one JSON object of figures, or one
-/// with a `missing` key saying what it could not import.
-pub fn script_figures(python: &Path, script: &str, args: &[String]) -> Result<Map<String, Value>> {
+/// Runs `script` with `args` after `imports` (Python import statements, one a line, beside
+/// `json`, `os`, `sys` and `time`); its last line of output is one JSON object of figures.
+/// An import that fails is an error saying what was missing.
+pub fn script_figures(
+    python: &Path,
+    imports: &str,
+    script: &str,
+    args: &[String],
+) -> Result<Map<String, Value>> {
+    let imports: String = imports
+        .lines()
+        .map(|line| format!("    {line}\n"))
+        .collect();
+    let program = format!(
+        "import json, os, sys, time\ntry:\n{imports}except ImportError as e:\n    \
+         print(json.dumps({{\"missing\": f\"{{e}} (Python {{sys.version.split()[0]}})\"}}))\n    \
+         sys.exit(0)\n{script}"
+    );
     let output = Command::new(python)
         .arg("-c")
-        .arg(script)
+        .arg(program)
         .args(args)
         .output()
         .with_context(|| format!("{} did not start", python.display()))?;

@@ -245,23 +245,18 @@ fn run_cpprb(python: &Path, steps: usize) -> Result<Map<String, Value>> {
         INSERT_CHUNK.to_string(),
         OBS_SIDE.to_string(),
     ];
-    script_figures(python, CPPRB_SCRIPT, &args)
+    script_figures(python, CPPRB_IMPORTS, CPPRB_SCRIPT, &args)
 }
+
+const CPPRB_IMPORTS: &str = "import numpy as np
+from cpprb import PrioritizedReplayBuffer
+from importlib.metadata import version";
 
 /// cpprb's side, run the way ours is: inserts with priorities in chunks until the buffer is
 /// full and an eighth more, then learner steps (sample with beta 0.4, update the batch's
 /// priorities), the median step timed. Arguments: capacities (comma-separated), batch, timed
 /// steps, warm-up steps, insert chunk, observation side. Prints one JSON object.
 const CPPRB_SCRIPT: &str = r#"
-import json, sys, time
-try:
-    import numpy as np
-    from cpprb import PrioritizedReplayBuffer
-    from importlib.metadata import version
-except ImportError as e:
-    print(json.dumps({"missing": f"{e} (Python {sys.version.split()[0]})"}))
-    sys.exit(0)
-
 capacities = [int(c) for c in sys.argv[1].split(",")]
 batch, steps, warm_up, chunk, side = (int(a) for a in sys.argv[2:7])
 figures = {"version": version("cpprb")}
