@@ -11,7 +11,7 @@ use anyhow::{Context, Result, bail};
 use learner::{LearningConfig, Sample, StepReport};
 use qnet::{Geometry, NetLayers, PrimitiveNet, QNets};
 use serde_json::{Map, Value, json};
-use sim::ROTATIONS;
+use sim::{Primitive, ROTATIONS};
 
 use super::python::script_figures;
 
@@ -78,6 +78,13 @@ pub fn torch_figures(python: &Path, run: &TrainingPeerRun) -> Result<Map<String,
     let learning = run.learning;
     if learning.mirror_grasps || learning.translate_samples > 0 {
         bail!("the peer builds no mirrored or translated items");
+    }
+    if run
+        .samples
+        .iter()
+        .any(|s| s.action.primitive != Primitive::Grasp)
+    {
+        bail!("the peer trains the grasp net");
     }
     let (geometry, low) = (run.geometry, run.geometry.low_side());
     let mut rotations = Vec::new();
