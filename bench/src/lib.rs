@@ -458,28 +458,20 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         put("gflop_per_inference", gflop_inference);
         put("achieved_gflops", gflop_batch_train / (batch_train / 1e3));
         put("inference_gflops", gflop_inference / (infer / 1e3));
-        // PyTorch's training step of the same net beside ours, on the CPU; an equivariant
-        // net's items share passes and an outcome head adds a loss, which its graph lacks.
+        // PyTorch's training step of the same net beside ours, on the CPU.
         if backend == Backend::Cpu && !args.no_peer {
-            let peer = if net.group() > 1 || net.grasp_outcome_head {
-                Err(anyhow::anyhow!(
-                    "the peer trains ordinary nets without an outcome head"
-                ))
-            } else {
-                let (learning, batch) = (LearningConfig::default(), samples(8));
-                let run = peer::TrainingPeerRun {
-                    net: &before_batch.grasp,
-                    rotated,
-                    geometry: &geometry,
-                    samples: &batch,
-                    learning: &learning,
-                    ours: &first_batch,
-                    reps,
-                    threads: rayon::current_num_threads(),
-                };
-                peer::torch_figures(&python, &run)
+            let (learning, batch) = (LearningConfig::default(), samples(8));
+            let run = peer::TrainingPeerRun {
+                net: &before_batch.grasp,
+                rotated,
+                geometry: &geometry,
+                samples: &batch,
+                learning: &learning,
+                ours: &first_batch,
+                reps,
+                threads: rayon::current_num_threads(),
             };
-            match peer {
+            match peer::torch_figures(&python, &run) {
                 Ok(peer) => {
                     let figure = |key: &str| peer[key].as_f64().unwrap_or(f64::NAN);
                     let torch_batch = figure("torch_batch_train_step_ms");

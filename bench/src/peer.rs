@@ -73,8 +73,12 @@ pub struct TrainingPeerRun<'a> {
 /// Runs [`TORCH_SCRIPT`]: `torch_train_step_ms` and `torch_batch_train_step_ms` (medians),
 /// `torch_max_rel_diff` (its first batch step's loss and Q values from ours), and its version.
 /// A grasp teaches its rotation and the symmetric one (the learner's items, in its order);
-/// a learning config that mirrors or translates samples adds items the peer does not build.
+/// what the peer's graph does not build is refused: an equivariant net (its items share
+/// passes), an outcome head (a second loss), mirrored or translated items.
 pub fn torch_figures(python: &Path, run: &TrainingPeerRun) -> Result<Map<String, Value>> {
+    if run.net.group() > 1 || run.net.has_outcome() {
+        bail!("the peer trains ordinary nets without an outcome head");
+    }
     let learning = run.learning;
     if learning.mirror_grasps || learning.translate_samples > 0 {
         bail!("the peer builds no mirrored or translated items");
