@@ -2,7 +2,7 @@
 CARGO ?= cargo
 SHARED ?= ../shared
 
-.PHONY: run test test-wgpu bench soak lint fmt arrangements
+.PHONY: run test test-gpu bench soak lint fmt arrangements
 
 # The main job: a scaled-down stage-1 training run (goal-conditioned grasping) on the CPU:
 # a buffer, a learner and 2 actor processes over shared memory, one to two minutes after the
@@ -10,27 +10,21 @@ SHARED ?= ../shared
 run:
 	$(CARGO) run --release -- train --config configs/stage1.toml
 
-# Every test, built optimised (physics in an unoptimised build is too slow to test), in one
-# build with the GPU backend (burn-wgpu; 35-55 minutes on two cores the first time): the CPU
-# path's tests, and the GPU path's (tests/wgpu.rs) on this machine's Vulkan device, Mesa's
-# software one (lavapipe) where there is no GPU, installed first when it is missing (as root
-# with apt-get); without one the CPU build's tests run alone, saying so. The MCAP files are
-# also read back by the independent Python reader, installed into target/ when Python is
-# there (the tests say so and skip that check when it is not). `--tests` runs every unit and
-# integration test; it leaves out doc tests, of which the workspace has none, and which would
-# have rustdoc check all 18 crates again to find that out (two minutes on two cores).
+# Every test of the CPU path, built optimised (physics in an unoptimised build is too slow
+# to test). The MCAP files are also read back by the independent Python reader, installed
+# into target/ when Python is there (the tests say so and skip that check when it is not).
+# `--tests` runs every unit and integration test; it leaves out doc tests, of which the
+# workspace has none, and which would have rustdoc check all 18 crates again to find that
+# out (two minutes on two cores).
 MCAP_VENV := target/mcap-venv
 test:
 	test -x $(MCAP_VENV)/bin/python3 || { python3 -m venv $(MCAP_VENV) && $(MCAP_VENV)/bin/python3 -m pip install -q mcap mcap-protobuf-support; } || echo "the Python mcap reader is not installed: its cross-check is skipped"
-	if tests/vulkan/install.sh; then \
-		$(CARGO) test --release --workspace --tests --features pushgrasp/wgpu; \
-	else \
-		echo "no Vulkan device: the GPU path's tests are skipped"; \
-		$(CARGO) test --release --workspace --tests; \
-	fi
+	$(CARGO) test --release --workspace --tests
 
-# The GPU path's tests alone.
-test-wgpu:
+# The GPU path's tests (tests/wgpu.rs), in a build with the GPU backend (burn-wgpu) of only
+# what they need, on this machine's Vulkan device: Mesa's software one (lavapipe) where
+# there is no GPU, installed first when it is missing (as root with apt-get).
+test-gpu:
 	tests/vulkan/install.sh
 	$(CARGO) test --release --features wgpu --test wgpu
 
