@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Heightmaps;
 use crate::error::SimError;
-use crate::gripper::Jaws;
+use crate::gripper::{JAWS_CLOSED_GAP, Jaws, pad_end_height};
 use crate::tabletop::{ObjectId, Tabletop};
 use crate::workspace;
 
@@ -22,14 +22,14 @@ pub const ROTATIONS: u8 = 16;
 const PUSH_WINDOW_HALF: f32 = 0.01;
 /// ...and the fingertips go 2 cm below it, then 2.6 cm up: 6 mm above it.
 const PUSH_TIP_ABOVE_SURFACE: f32 = -0.02 + 0.026;
-/// Grasp: the tool centre goes 4 cm below the surface at the pixel, but no lower than 2 cm
-/// above the table...
+/// Grasp: the tool point (`UR5_tip`) goes 4 cm below the surface at the pixel, but no lower
+/// than 2 cm above the table (`robot.py`, `grasp`)...
 const GRASP_DEPTH: f32 = 0.04;
 const GRASP_MIN_HEIGHT: f32 = 0.02;
-/// ...and the tool centre sits this far above the fingertips' lower end.
-const TOOL_CENTRE_ABOVE_TIPS: f32 = 0.01;
-/// Where each motion starts above its working height.
-const APPROACH_HEIGHT: f32 = 0.10;
+/// ...arriving from 0.15 m above it (`grasp_location_margin`); a push arrives from 0.1 m
+/// above its start (`pushing_point_margin`).
+const GRASP_APPROACH_HEIGHT: f32 = 0.15;
+const PUSH_APPROACH_HEIGHT: f32 = 0.10;
 /// Tool speeds (m/s).
 const DESCEND_SPEED: f32 = 0.5;
 const PUSH_SPEED: f32 = 0.25;
@@ -39,11 +39,6 @@ const CLOSE_MAX_S: f32 = 0.3;
 const CLOSE_STOPPED_SPEED: f32 = 0.002;
 /// Time held still after the lift before the grasp is judged (s).
 const HOLD_S: f32 = 0.1;
-/// After the lift the jaws count as closed on nothing below this gap (m). The original
-/// judges its grasp by whether the re-closed jaws close fully (`robot.py`, `close_gripper`:
-/// joint past -0.045 of its travel); that gap is not given, and every object here is held
-/// with a centimetre or more between the pads, so any gap under that gives the same verdicts.
-const JAWS_CLOSED_GAP: f32 = 0.005;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -86,7 +81,8 @@ pub struct ActionOutcome {
     pub grasped: Option<ObjectId>,
     /// Gap between the fingers after the lift (grasps; metres).
     pub final_opening: f32,
-    /// Tool path: where the fingertips started and ended the working motion.
+    /// Tool path: where the tool point (the scene's `UR5_tip`) started and ended the working
+    /// motion.
     pub start: [f32; 3],
     pub end: [f32; 3],
     /// Objects that left the table during the action or the settle after it.
@@ -152,7 +148,8 @@ impl Tabletop {
                 surface = surface.max(observation.height[observation.index(row, col)]);
             }
         }
-        let z = surface + PUSH_TIP_ABOVE_SURFACE;
+        // The tool point, with the closed pads' ends that far above the surface.
+        let z = surface + PUSH_TIP_ABOVE_SURFACE - pad_end_height(Jaws::Closed);
         let angle = action.angle();
         let length = self.config().push_length;
         let start = Vector::new(x, y, z);
@@ -162,7 +159,7 @@ impl Tabletop {
             z,
         );
         let rotation = Rotation::from_rotation_z(angle);
-        let above = Vector::new(x, y, z + APPROACH_HEIGHT);
+        let above = Vector::new(x, y, z + PUSH_APPROACH_HEIGHT);
         self.gripper.place(
             &mut self.world,
             Pose::from_parts(above, rotation),
@@ -170,7 +167,7 @@ impl Tabletop {
         );
         self.move_tool(start, rotation, DESCEND_SPEED);
         self.move_tool(end, rotation, PUSH_SPEED);
-        self.move_tool(end + Vector::Z * APPROACH_HEIGHT, rotation, LIFT_SPEED);
+        self.move_tool(end + Vector::Z * PUSH_APPROACH_HEIGHT, rotation, LIFT_SPEED);
         let removed = self.remove_fallen();
         ActionOutcome {
             start: start.to_array(),
@@ -184,9 +181,9 @@ impl Tabletop {
         let grid = self.grid();
         let [x, y] = grid.pixel_centre(action.row, action.col);
         let surface = observation.height[observation.index(action.row, action.col)];
-        let z = (surface - GRASP_DEPTH).max(GRASP_MIN_HEIGHT) - TOOL_CENTRE_ABOVE_TIPS;
+        let z = (surface - GRASP_DEPTH).max(GRASP_MIN_HEIGHT);
         let rotation = Rotation::from_rotation_z(action.angle());
-        let above = Vector::new(x, y, z + APPROACH_HEIGHT);
+        let above = Vector::new(x, y, z + GRASP_APPROACH_HEIGHT);
         self.gripper.place(
             &mut self.world,
             Pose::from_parts(above, rotation),
