@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Heightmaps;
 use crate::error::SimError;
-use crate::gripper::{JAWS_CLOSED_GAP, Jaws, pad_end_height};
+use crate::gripper::{JAWS_CLOSED_GAP, Jaws};
 use crate::tabletop::{ObjectId, Tabletop};
 use crate::workspace;
 
@@ -20,8 +20,9 @@ pub const ROTATIONS: u8 = 16;
 /// Push: the local surface height is the highest point within this half-width of the start
 /// (the original's 11 x 11 window at 2 mm, half a finger width)...
 const PUSH_WINDOW_HALF: f32 = 0.01;
-/// ...and the fingertips go 2 cm below it, then 2.6 cm up: 6 mm above it.
-const PUSH_TIP_ABOVE_SURFACE: f32 = -0.02 + 0.026;
+/// ...and the tool point goes 1 cm below it (`main.py`, `safe_z_position`), then 2.6 cm up
+/// (`robot.py`, `push`): the closed pads' ends 6.6 mm below the surface.
+const PUSH_TOOL_ABOVE_SURFACE: f32 = -0.01 + 0.026;
 /// Grasp: the tool point (`UR5_tip`) goes 4 cm below the surface at the pixel, but no lower
 /// than 2 cm above the table (`robot.py`, `grasp`)...
 const GRASP_DEPTH: f32 = 0.04;
@@ -148,8 +149,7 @@ impl Tabletop {
                 surface = surface.max(observation.height[observation.index(row, col)]);
             }
         }
-        // The tool point, with the closed pads' ends that far above the surface.
-        let z = surface + PUSH_TIP_ABOVE_SURFACE - pad_end_height(Jaws::Closed);
+        let z = surface + PUSH_TOOL_ABOVE_SURFACE;
         let angle = action.angle();
         let length = self.config().push_length;
         let start = Vector::new(x, y, z);
