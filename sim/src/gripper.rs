@@ -150,6 +150,14 @@ fn link_end(pivot: [f32; 2], angle: f32) -> Vector {
     )
 }
 
+/// The height of the pads' lower ends above the tool point with the jaws at a limit: 15.5 mm
+/// above it fully open, 22.6 mm below it closed.
+pub(crate) fn pad_end_height(jaws: Jaws) -> f32 {
+    let gap = jaws.gap();
+    let stored_end = PAD_PARTS[2].min[2];
+    stored_end + link_end(LINK0_PIVOT, link_angle(gap)).z - link_end(LINK0_PIVOT, STORED_ANGLE).z
+}
+
 /// One side of the gripper: the finger and its two links. `side` is +1 for the finger on
 /// +x, -1 for its mirror image.
 #[derive(Clone)]
@@ -406,15 +414,6 @@ fn park_point() -> Vector {
 mod tests {
     use super::*;
     use crate::{SimConfig, Tabletop};
-
-    /// The height of the pads' lower ends above the tool point with the jaws at a limit: 15.5 mm
-    /// above it fully open, 22.6 mm below it closed.
-    fn pad_end_height(jaws: Jaws) -> f32 {
-        let gap = jaws.gap();
-        let stored_end = PAD_PARTS[2].min[2];
-        stored_end + link_end(LINK0_PIVOT, link_angle(gap)).z
-            - link_end(LINK0_PIVOT, STORED_ANGLE).z
-    }
 
     /// Where the pads' lower ends are now, above the tool point.
     fn pad_end_now(world: &PhysicsWorld, gripper: &Gripper) -> f32 {

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Heightmaps;
 use crate::error::SimError;
-use crate::gripper::{JAWS_CLOSED_GAP, Jaws};
+use crate::gripper::{JAWS_CLOSED_GAP, Jaws, pad_end_height};
 use crate::tabletop::{ObjectId, Tabletop};
 use crate::workspace;
 
@@ -21,7 +21,10 @@ pub const ROTATIONS: u8 = 16;
 /// (the original's 11 x 11 window at 2 mm, half a finger width)...
 const PUSH_WINDOW_HALF: f32 = 0.01;
 /// ...and the tool point goes 1 cm below it (`main.py`, `safe_z_position`), then 2.6 cm up
-/// (`robot.py`, `push`): the closed pads' ends 6.6 mm below the surface.
+/// (`robot.py`, `push`): the closed pads' ends 6.6 mm below the surface. Over the bare table
+/// that is 6.6 mm into it, where the original's floor stops them; here the tool stops where
+/// the pads' ends meet the table: driven into it, rapier's joints let the fingers lag behind
+/// the palm and pass through what they push.
 const PUSH_TOOL_ABOVE_SURFACE: f32 = -0.01 + 0.026;
 /// Grasp: the tool point (`UR5_tip`) goes 4 cm below the surface at the pixel, but no lower
 /// than 2 cm above the table (`robot.py`, `grasp`)...
@@ -149,7 +152,7 @@ impl Tabletop {
                 surface = surface.max(observation.height[observation.index(row, col)]);
             }
         }
-        let z = surface + PUSH_TOOL_ABOVE_SURFACE;
+        let z = (surface + PUSH_TOOL_ABOVE_SURFACE).max(-pad_end_height(Jaws::Closed));
         let angle = action.angle();
         let length = self.config().push_length;
         let start = Vector::new(x, y, z);
