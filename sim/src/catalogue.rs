@@ -30,11 +30,6 @@ pub const SLOT_COLOURS: [[u8; 3]; 10] = [
     [255, 157, 167],
 ];
 
-/// Density of the blocks (painted wood, kg/m^3): a 5 cm cube weighs 75 g.
-pub const BLOCK_DENSITY: f32 = 600.0;
-/// Coulomb friction of blocks against each other and the table (wood on laminate).
-pub const BLOCK_FRICTION: f32 = 0.5;
-
 /// The lowest and highest corner of the axis-aligned box around `points`.
 pub(crate) fn box_around(points: impl Iterator<Item = Vector>) -> (Vector, Vector) {
     points.fold(

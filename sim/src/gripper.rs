@@ -17,6 +17,7 @@ use std::f32::consts::PI;
 use rapier3d::prelude::*;
 
 use crate::collision::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
+use crate::material;
 use crate::workspace;
 
 /// Length of both links of a finger's parallelogram, pivot to finger (`RG2_leftJoint0` to
@@ -226,10 +227,7 @@ impl Gripper {
             InteractionTestMode::And,
         );
         let material = |collider: ColliderBuilder, friction: f32| {
-            collider
-                .friction(friction)
-                .restitution(0.0)
-                .collision_groups(groups)
+            material::bullet(collider, friction).collision_groups(groups)
         };
         let palm = world.insert_body(RigidBodyBuilder::kinematic_position_based());
         world.insert_collider(

@@ -14,6 +14,7 @@ pub mod config;
 pub mod error;
 mod gripper;
 pub mod mask_shape;
+mod material;
 pub mod measure;
 pub mod primitives;
 pub mod scene;

@@ -4,11 +4,12 @@ use std::time::{Duration, Instant};
 
 use rapier3d::prelude::*;
 
-use crate::catalogue::{BLOCK_DENSITY, BLOCK_FRICTION, ShapeKind};
+use crate::catalogue::ShapeKind;
 use crate::collision::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
 use crate::config::SimConfig;
 use crate::error::SimError;
 use crate::gripper::Gripper;
+use crate::material::{self, OBJECT_FRICTION, OBJECT_MASS, TABLE_FRICTION};
 use crate::workspace::{self, PixelGrid};
 
 /// An object's id: 1..=255, 0 is the table in the id heightmap.
@@ -90,8 +91,7 @@ impl Tabletop {
                 workspace::CENTRE[1],
                 -0.05,
             )),
-            ColliderBuilder::cuboid(half, half, 0.05)
-                .friction(BLOCK_FRICTION)
+            material::bullet(ColliderBuilder::cuboid(half, half, 0.05), TABLE_FRICTION)
                 .collision_groups(InteractionGroups::new(
                     TABLE_GROUP,
                     OBJECT_GROUP | GRIPPER_GROUP,
@@ -169,9 +169,8 @@ impl Tabletop {
                 (Pose::IDENTITY, hull)
             })
             .collect();
-        let collider = ColliderBuilder::compound(shapes)
-            .density(BLOCK_DENSITY)
-            .friction(BLOCK_FRICTION)
+        let collider = material::bullet(ColliderBuilder::compound(shapes), OBJECT_FRICTION)
+            .mass(OBJECT_MASS)
             .collision_groups(InteractionGroups::new(
                 OBJECT_GROUP,
                 TABLE_GROUP | OBJECT_GROUP | GRIPPER_GROUP,
