@@ -118,7 +118,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     let dir = RunDir::in_logs(&args.logs, &args.run_id).host(&host);
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
-    std::fs::write(dir.config(), &placement.config)?;
+    dir.write_config(&placement.config)?;
     // This host's own shared memory: named after the run, this directory and this launch, as
     // a run's is (a host killed while it made a service rejoins under a namespace of its own).
     let (namespace, transport) = open_launch(&args.run_id, &dir, "bridge")?;

@@ -205,7 +205,7 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
     config.backend.check()?;
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
-    std::fs::write(dir.config(), toml::to_string(&config)?)?;
+    dir.write_config(&toml::to_string(&config)?)?;
     Ok((run_id, dir, config))
 }
 

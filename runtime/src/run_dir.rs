@@ -56,6 +56,15 @@ impl RunDir {
         self.path.join("config.toml")
     }
 
+    /// Writes the run's resolved config whole or not at all (a file beside it, renamed over
+    /// it): a run killed as it starts leaves no empty config that `--resume` cannot read.
+    pub fn write_config(&self, text: &str) -> Result<()> {
+        let part = self.path.join("config.toml.part");
+        std::fs::write(&part, text).with_context(|| format!("writing {}", part.display()))?;
+        std::fs::rename(&part, self.config())
+            .with_context(|| format!("writing {}", self.config().display()))
+    }
+
     /// What the finished run says about itself (`summary.json`).
     pub fn summary(&self) -> PathBuf {
         self.path.join("summary.json")
