@@ -244,23 +244,20 @@ impl Gripper {
         let stored_origin = link_end(LINK0_PIVOT, STORED_ANGLE);
         let sides = [1.0f32, -1.0].map(|side| {
             let finger = world.insert_body(RigidBodyBuilder::dynamic().can_sleep(false));
-            for (i, part) in FINGER_PARTS.iter().enumerate() {
-                let collider = part_collider(part, stored_origin, side);
-                let collider = if i == 0 {
-                    collider.mass(PART_MASS)
-                } else {
-                    collider.density(0.0)
-                };
-                world.insert_collider(material(collider, LINK_FRICTION), Some(finger));
-            }
-            for (i, part) in PAD_PARTS.iter().enumerate() {
-                let collider = part_collider(part, stored_origin, side);
-                let collider = if i == 0 {
-                    collider.mass(PART_MASS)
-                } else {
-                    collider.density(0.0)
-                };
-                world.insert_collider(material(collider, PAD_FRICTION), Some(finger));
+            // The finger (its link and its pad, each 0.045 kg, carried by its largest box).
+            for (parts, friction) in [
+                (&FINGER_PARTS[..], LINK_FRICTION),
+                (&PAD_PARTS, PAD_FRICTION),
+            ] {
+                for (i, part) in parts.iter().enumerate() {
+                    let collider = part_collider(part, stored_origin, side);
+                    let collider = if i == 0 {
+                        collider.mass(PART_MASS)
+                    } else {
+                        collider.density(0.0)
+                    };
+                    world.insert_collider(material(collider, friction), Some(finger));
+                }
             }
             let links =
                 [(LINK0_BAR, PART_MASS), (LINK2_BAR, 2.0 * PART_MASS)].map(|(bar, mass)| {
