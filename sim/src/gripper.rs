@@ -151,12 +151,20 @@ fn link_end(pivot: [f32; 2], angle: f32) -> Vector {
     )
 }
 
+/// The +x finger's frame origin in the stored pose, where its parts' boxes are given.
+fn stored_origin() -> Vector {
+    link_end(LINK0_PIVOT, STORED_ANGLE)
+}
+
+/// The height of the pads' lower ends in a finger's frame.
+fn pad_end_on_finger() -> f32 {
+    PAD_PARTS[2].min[2] - stored_origin().z
+}
+
 /// The height of the pads' lower ends above the tool point with the jaws at a limit: 15.5 mm
 /// above it fully open, 22.6 mm below it closed.
 pub(crate) fn pad_end_height(jaws: Jaws) -> f32 {
-    let gap = jaws.gap();
-    let stored_end = PAD_PARTS[2].min[2];
-    stored_end + link_end(LINK0_PIVOT, link_angle(gap)).z - link_end(LINK0_PIVOT, STORED_ANGLE).z
+    link_end(LINK0_PIVOT, link_angle(jaws.gap())).z + pad_end_on_finger()
 }
 
 /// One side of the gripper: the finger and its two links. `side` is +1 for the finger on
@@ -241,7 +249,7 @@ impl Gripper {
             );
         }
 
-        let stored_origin = link_end(LINK0_PIVOT, STORED_ANGLE);
+        let stored_origin = stored_origin();
         let sides = [1.0f32, -1.0].map(|side| {
             let finger = world.insert_body(RigidBodyBuilder::dynamic().can_sleep(false));
             // The finger (its link and its pad, each 0.045 kg, carried by its largest box).
@@ -387,7 +395,7 @@ impl Gripper {
             palm.inverse_transform_point(world.bodies[s.finger].translation())
                 .x
         });
-        let stored_face = link_end(LINK0_PIVOT, STORED_ANGLE).x - STORED_GAP / 2.0;
+        let stored_face = stored_origin().x - STORED_GAP / 2.0;
         (a - b) - 2.0 * stored_face
     }
 
@@ -414,8 +422,7 @@ mod tests {
     fn pad_end_now(world: &PhysicsWorld, gripper: &Gripper) -> f32 {
         let palm = world.bodies[gripper.palm].position();
         let finger = world.bodies[gripper.sides[0].finger].translation();
-        let stored_origin = link_end(LINK0_PIVOT, STORED_ANGLE);
-        palm.inverse_transform_point(finger).z + PAD_PARTS[2].min[2] - stored_origin.z
+        palm.inverse_transform_point(finger).z + pad_end_on_finger()
     }
 
     /// Drives the jaws to a limit for half a second, the palm held still, and returns the gap
