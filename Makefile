@@ -5,8 +5,8 @@ SHARED ?= ../shared
 .PHONY: run test test-gpu bench soak lint fmt arrangements
 
 # The main job: a scaled-down stage-1 training run (goal-conditioned grasping) on the CPU:
-# a buffer, a learner and 2 actor processes over shared memory, one to two minutes after the
-# build; checkpoint, snapshot and summary land in logs/<run-id>/.
+# a buffer, a learner and 2 actor processes over shared memory, about 45 s after the build;
+# checkpoint, snapshot, learning curve and summary land in logs/<run-id>/.
 run:
 	$(CARGO) run --release -- train --config configs/stage1.toml
 
