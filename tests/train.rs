@@ -724,7 +724,11 @@ fn buffer_fault(config: &Path, logs: &Path, run: &str, kill: &str) -> (bool, i32
 fn assert_buffer_restarted(logs: &Path, run: &str, cause: &str) {
     let summary = summary(logs, run);
     assert!(summary["failure"].is_null(), "{}", summary["failure"]);
-    assert_eq!(u(&summary["restarts"]), 0, "an actor was restarted");
+    assert_eq!(
+        u(&summary["restarts"]),
+        1,
+        "not the buffer alone was restarted"
+    );
     let buffer = &summary["buffer"];
     assert!(u(&buffer["episodes"]) >= 300);
     let faults = summary["faults"].as_array().unwrap();
@@ -798,8 +802,29 @@ fn a_damaged_newest_snapshot_and_checkpoint_resume_from_the_previous_generation(
     assert!(dir.join("buffer.snapshot.prev").exists() && dir.join("checkpoint.prev").exists());
     std::fs::write(dir.join("buffer.snapshot"), b"not a snapshot").unwrap();
     std::fs::write(dir.join("checkpoint/manifest.toml"), b"[[[").unwrap();
-    run("90", true);
+    let third = command(
+        logs.path(),
+        &[
+            "--actors",
+            "1",
+            "--episodes",
+            "90",
+            "--run-id",
+            "gens",
+            "--resume",
+        ],
+    )
+    .output()
+    .unwrap();
+    assert!(third.status.success());
+    // On the console, where the person running it looks, and in each role's log.
+    let console = String::from_utf8_lossy(&third.stderr);
     for (role, damaged) in [("buffer", "buffer.snapshot"), ("learner", "checkpoint")] {
+        assert!(
+            console.contains(&format!("warning from the {role}: "))
+                && console.contains(&format!("{damaged} is damaged")),
+            "the console:\n{console}"
+        );
         let log = std::fs::read_to_string(dir.join(format!("{role}.log"))).unwrap();
         assert!(
             log.contains(&format!("{damaged} is damaged")) && log.contains(".prev"),
@@ -866,6 +891,42 @@ fn a_snapshot_on_request_then_ctrl_c_leaves_a_checkpoint_a_snapshot_and_reports_
         "the resumed learner's own updates are the run's beyond the checkpoint's"
     );
     assert_lossless(logs.path(), "int");
+}
+
+#[test]
+fn a_role_that_fails_the_same_way_as_it_starts_is_not_started_again() {
+    let logs = logs();
+    // Nets to start from that are not there: the learner fails as it starts, every time.
+    let nothing = tempfile::tempdir().unwrap();
+    let output = command(
+        logs.path(),
+        &[
+            "--actors",
+            "1",
+            "--episodes",
+            "50",
+            "--run-id",
+            "loop",
+            "--init-from",
+        ],
+    )
+    .arg(nothing.path())
+    .output()
+    .unwrap();
+    assert!(!output.status.success());
+    let console = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        console.contains("the learner-1 failed twice the same way as it started")
+            && console.contains("manifest"),
+        "{console}"
+    );
+    let dir = logs.path().join("loop");
+    assert!(dir.join("learner-1.log").exists() && !dir.join("learner-2.log").exists());
+    let summary = summary(logs.path(), "loop");
+    assert_eq!(u(&summary["restarts"]), 1, "{summary}");
+    let faults = summary["faults"].as_array().unwrap();
+    assert_eq!(faults.len(), 2, "{faults:?}");
+    assert!(faults[1]["restarted"] == false && faults[0]["cause"] == faults[1]["cause"]);
 }
 
 #[test]

@@ -37,11 +37,39 @@ struct Hashing<W> {
     inner: W,
     len: u64,
     hash: Xxh3,
+    /// The first write that failed: postcard reports any as "the serialize buffer is
+    /// full", which would hide the cause (a full disk).
+    failed: Option<std::io::Error>,
+}
+
+impl<W: Write> Hashing<W> {
+    fn new(inner: W) -> Self {
+        Self {
+            inner,
+            len: 0,
+            hash: Xxh3::new(),
+            failed: None,
+        }
+    }
+
+    /// Streams `value` through, encoded; returns the payload's length and hash. A failed
+    /// write is the error, as the writer gave it.
+    fn encode(&mut self, value: &impl Serialize) -> Result<(u64, u64), SnapshotErrorKind> {
+        let encoded = postcard::to_io(value, &mut *self).map(drop);
+        if let Some(e) = self.failed.take() {
+            return Err(e.into());
+        }
+        encoded?;
+        Ok((self.len, self.hash.digest()))
+    }
 }
 
 impl<W: Write> Write for Hashing<W> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
+        let n = self.inner.write(buf).inspect_err(|e| {
+            self.failed
+                .get_or_insert_with(|| std::io::Error::new(e.kind(), e.to_string()));
+        })?;
         self.len += n as u64;
         self.hash.update(&buf[..n]);
         Ok(n)
@@ -80,13 +108,8 @@ impl ReplayCopy {
         let write = || -> Result<(), SnapshotErrorKind> {
             let mut file = BufWriter::new(File::create(&tmp)?);
             file.write_all(&[0; HEADER])?;
-            let mut hashing = Hashing {
-                inner: file,
-                len: 0,
-                hash: Xxh3::new(),
-            };
-            postcard::to_io(&self.0, &mut hashing)?;
-            let (len, hash) = (hashing.len, hashing.hash.digest());
+            let mut hashing = Hashing::new(file);
+            let (len, hash) = hashing.encode(&self.0)?;
             let mut file = hashing.inner.into_inner().map_err(|e| e.into_error())?;
             file.seek(SeekFrom::Start(0))?;
             file.write_all(&header(len, hash))?;
@@ -273,4 +296,47 @@ pub(crate) fn check_ring_observations(ring: &Ring, primitive: Primitive) -> Resu
             )
         })
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::io;
+
+    use super::*;
+
+    /// A disk that fills after `room` bytes.
+    struct Filling {
+        room: usize,
+    }
+
+    impl Write for Filling {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            if self.room == 0 {
+                return Err(io::Error::from_raw_os_error(ENOSPC));
+            }
+            let n = buf.len().min(self.room);
+            self.room -= n;
+            Ok(n)
+        }
+
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Linux's "No space left on device".
+    const ENOSPC: i32 = 28;
+
+    #[test]
+    fn a_full_disk_is_the_error_not_the_encoders_complaint() {
+        let payload = vec![7u8; 10_000];
+        let err = Hashing::new(Filling { room: 100 })
+            .encode(&payload)
+            .unwrap_err();
+        assert!(err.to_string().contains("No space left on device"), "{err}");
+        let (len, _) = Hashing::new(Filling { room: 20_000 })
+            .encode(&payload)
+            .unwrap();
+        assert_eq!(len, 10_002, "the length's varint and the bytes");
+    }
 }

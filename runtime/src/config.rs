@@ -280,8 +280,9 @@ impl RunConfig {
 
     /// Sizes the replay for this run: a capacity in bytes becomes transitions per ring at
     /// the bytes a stored step of this run's scenes takes, and a replay that cannot fit the
-    /// memory this machine has available is refused, with the figure it would need.
-    pub fn size_buffer(&mut self) -> Result<()> {
+    /// memory this machine has available is refused, with the figure it would need. Returns
+    /// the bytes the full replay takes.
+    pub fn size_buffer(&mut self) -> Result<u64> {
         let step = buffer::bytes_per_step(&self.sim, self.objects)?;
         let asked = self.buffer.capacity;
         self.buffer.resolve(step);
@@ -300,7 +301,7 @@ impl RunConfig {
                 side = self.side(),
             );
         }
-        Ok(())
+        Ok(needed)
     }
 
     /// Actor `index`'s exploration rate after it took `actions` actions.
@@ -336,7 +337,7 @@ impl RunConfig {
 }
 
 /// The memory this machine has available now (Linux's MemAvailable), where it says.
-fn available_memory() -> Option<u64> {
+pub(crate) fn available_memory() -> Option<u64> {
     let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;

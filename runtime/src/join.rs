@@ -23,6 +23,7 @@ use wire::{Inbox, Outbox, Role, Topic, Transport};
 use crate::actor::ActorId;
 use crate::config::RunConfig;
 use crate::launch::open_launch;
+use crate::machine::{Allowance, Demand};
 use crate::progress::Watch;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
@@ -121,7 +122,11 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     dir.write_config(&placement.config)?;
     // This host's own shared memory: named after the run, this directory and this launch, as
     // a run's is (a host killed while it made a service rejoins under a namespace of its own).
-    let (namespace, transport) = open_launch(&args.run_id, &dir, "bridge")?;
+    // This host's processes: its actors and the one that bridges them to the central host.
+    let demand = Demand::new(&config, args.actors, 1, 0)?;
+    demand.check(&Allowance::here())?;
+    let limits = demand.limits();
+    let (namespace, transport) = open_launch(&args.run_id, &dir, "bridge", limits)?;
     let transport: Arc<dyn Transport + Send + Sync> = Arc::new(transport);
     let bridge = HostBridge::start(session, keys, &host, transport.clone())?;
     let signals = Signals::install()?;
@@ -131,6 +136,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     let mut supervisor = Supervisor::new(
         Wiring::Processes {
             namespace: namespace.clone(),
+            limits,
         },
         config,
         dir.clone(),
@@ -139,10 +145,11 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     );
     let last = placement.first_actor + args.actors;
     println!(
-        "joined run {} at {} as host {host}: actors {}..{last}, logs in {}",
+        "joined run {} at {} as host {host}: actors {}..{last} ({}), logs in {}",
         args.run_id,
         args.endpoint,
         placement.first_actor,
+        demand.describe(),
         dir.path().display()
     );
     for index in placement.first_actor..last {

@@ -11,20 +11,21 @@ use anyhow::{Context, Result, anyhow, bail};
 use bridge::Endpoint;
 use clap::Args;
 use mcaplog::LogLevel;
-use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
+use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, ShmLimits, Topic, Transport};
 
 use crate::actor::{ActorId, ActorReport};
 use crate::backend::{self, Backend};
 use crate::buffer::BufferReport;
 use crate::config::RunConfig;
 use crate::hosts::HostLink;
+use crate::machine::{Allowance, Demand};
 use crate::progress::{Display, Summary, Watch, percent};
 use crate::record::LAUNCHER_SUMMARY;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
 use crate::settings::{load_with, merge, parse_setting};
 use crate::signals::Signals;
-use crate::supervisor::{Supervisor, Wiring};
+use crate::supervisor::{RESUME_HINT, Supervisor, Wiring};
 use crate::{read_json, write_json};
 
 /// How long the buffer may take to start listening.
@@ -80,18 +81,18 @@ pub struct TrainArgs {
 }
 
 pub fn train(args: &TrainArgs) -> Result<()> {
-    let (run_id, dir, config) = prepare_run(args)?;
+    let (run_id, dir, config, demand) = prepare_run(args)?;
     let signals = Signals::install()?;
-    let (wiring, transport) = wiring(args.threads, &run_id, &dir)?;
+    let (wiring, transport) = wiring(args.threads, &run_id, &dir, &demand)?;
     let mut link = HostLink::new(args.listen.as_ref(), &run_id, &dir, &config, &transport)?;
     let mut status = Inbox::open(transport.as_ref(), Topic::Status)?;
     let mut control = Outbox::open(transport.as_ref(), Topic::Control)?;
     let log = open_log(&dir, "launcher", &config)?;
     let mut supervisor = Supervisor::new(wiring, config.clone(), dir.clone(), args.resume, log);
     let how = if args.threads {
-        "threads over channels"
+        "threads over channels".to_string()
     } else {
-        "processes over shared memory"
+        format!("processes over shared memory: {}", demand.describe())
     };
     println!(
         "run {run_id}: stage {}, {} actors ({how}), logs in {}",
@@ -157,9 +158,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     Ok(())
 }
 
-/// The run's id, its directory, and its config with the command line's overrides, checked
-/// and written to the directory (or, with `--resume`, read from it).
-fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
+/// The run's id, its directory, its config with the command line's overrides, checked and
+/// written to the directory (or, with `--resume`, read from it), and what it asks of this
+/// machine (checked).
+fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig, Demand)> {
     let run_id = match (&args.run_id, args.resume) {
         (Some(id), _) => id.clone(),
         (None, true) => newest_run(&args.logs)?,
@@ -201,20 +203,28 @@ fn prepare_run(args: &TrainArgs) -> Result<(String, RunDir, RunConfig)> {
         config.init_from = Some(init);
     }
     config.validate()?;
-    config.size_buffer()?;
+    let replay = config.size_buffer()?;
     config.backend.check()?;
+    let demand = Demand::new(&config, config.actors, CENTRAL_ROLES, replay)?;
+    if !args.threads {
+        demand.check(&Allowance::here())?;
+    }
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
     dir.write_config(&toml::to_string(&config)?)?;
-    Ok((run_id, dir, config))
+    Ok((run_id, dir, config, demand))
 }
+
+/// The processes of a run on the central host beside its actors: the launcher, the buffer
+/// and the learner.
+const CENTRAL_ROLES: u32 = 3;
 
 /// A transport the bridge's threads share with the launcher.
 type Shared = Arc<dyn Transport + Send + Sync>;
 
 /// How the roles meet: threads over channels, or processes over the run's shared memory
 /// (what killed processes of earlier launches of this run left removed first).
-fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)> {
+fn wiring(threads: bool, run_id: &str, dir: &RunDir, demand: &Demand) -> Result<(Wiring, Shared)> {
     if threads {
         let transport = ChannelTransport::new();
         let wiring = Wiring::Threads {
@@ -222,8 +232,9 @@ fn wiring(threads: bool, run_id: &str, dir: &RunDir) -> Result<(Wiring, Shared)>
         };
         return Ok((wiring, Arc::new(transport)));
     }
-    let (namespace, transport) = open_launch(run_id, dir, "launcher")?;
-    Ok((Wiring::Processes { namespace }, Arc::new(transport)))
+    let limits = demand.limits();
+    let (namespace, transport) = open_launch(run_id, dir, "launcher", limits)?;
+    Ok((Wiring::Processes { namespace, limits }, Arc::new(transport)))
 }
 
 /// The report at `path`, or `missing()` when the role wrote none (it died); a report that
@@ -274,7 +285,7 @@ fn actor_reports(dir: &RunDir) -> Result<Vec<ActorReport>> {
 
 fn print_summary(summary: &Summary, dir: &RunDir) {
     println!(
-        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost{}), {} learner updates, {} actor restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
+        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost{}), {} learner updates, {} restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
         match (&summary.failure, summary.interrupted) {
             (Some(_), _) => "failed",
             (None, true) => "interrupted",
@@ -374,7 +385,8 @@ fn stop_in_order(supervisor: &mut Supervisor, control: &mut Outbox, link: &HostL
         .filter(|p| !p.starts_with(Role::Actor.name()))
         .collect();
     if !failed.is_empty() {
-        bail!("stopping the run: {failed:?}");
+        let failed: Vec<&str> = failed.iter().map(|p| p.as_str()).collect();
+        bail!("stopping the run: {}; {RESUME_HINT}", failed.join("; "));
     }
     for problem in problems {
         eprintln!("while stopping: {problem}");
@@ -407,16 +419,18 @@ fn newest_run(logs: &Path) -> Result<String> {
 }
 
 /// This launch's shared memory, as `node`: what the run's dead processes left removed, then a
-/// transport under a namespace of this launch's own ([`launch_namespace`]), which it returns.
+/// transport under a namespace of this launch's own ([`launch_namespace`]) with the run's
+/// limits, which it returns.
 pub(crate) fn open_launch(
     run_id: &str,
     dir: &RunDir,
     node: &str,
+    limits: ShmLimits,
 ) -> Result<(String, wire::ShmTransport)> {
     let run_space = shm_namespace(run_id, dir)?;
     wire::ShmTransport::remove_stale(&run_space)?;
     let namespace = launch_namespace(&run_space);
-    let transport = wire::ShmTransport::new(&namespace, node)?;
+    let transport = wire::ShmTransport::new(&namespace, node, limits)?;
     Ok((namespace, transport))
 }
 

@@ -13,6 +13,7 @@ pub mod hosts;
 pub mod join;
 pub mod launch;
 pub mod learner;
+pub mod machine;
 pub mod pipeline;
 pub mod pretrain;
 pub mod progress;

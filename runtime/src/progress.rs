@@ -95,6 +95,7 @@ impl Progress {
                 self.actors.insert(actor, progress);
             }
             Status::Failed { role, error } => return Some(format!("{role}: {error}")),
+            Status::Warning { .. } => {}
         }
         None
     }
@@ -143,6 +144,7 @@ impl Progress {
 pub struct Summary {
     pub run_id: String,
     pub actors: u32,
+    /// Roles started again after a failure: actors, the buffer and the learner.
     pub restarts: u32,
     pub interrupted: bool,
     pub wall_s: f64,
@@ -300,13 +302,20 @@ impl Watch {
             {
                 self.actors_held = Some(Instant::now());
             }
+            if let Status::Warning { role, warning } = &report {
+                supervisor.announce(&format!("warning from the {role}: {warning}"))?;
+            }
             if let Some(failure) = self.progress.take(report) {
                 self.failures.push(failure);
             }
         }
         let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
         supervisor.kill_silent(&self.last_heard, self.actors_held, timeout);
-        supervisor.check(&self.failures, self.progress.weights_version)
+        supervisor.check(
+            &self.failures,
+            &self.last_heard,
+            self.progress.weights_version,
+        )
     }
 }
 
@@ -324,6 +333,6 @@ fn reporter(report: &Status) -> Option<String> {
             })
             .name(),
         ),
-        Status::Failed { .. } => None,
+        Status::Failed { .. } | Status::Warning { .. } => None,
     }
 }

@@ -164,6 +164,10 @@ pub struct RoleArgs {
     /// The namespace of the run's shared-memory services (this launch's, from the launcher).
     #[arg(long)]
     pub shm_namespace: String,
+    /// The run's processes on this machine, from which its topics' limits follow (the
+    /// launcher's figure: every process must give the same).
+    #[arg(long)]
+    pub shm_processes: usize,
     #[arg(long)]
     pub resume: bool,
     /// The actor's index.
@@ -202,7 +206,8 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
     let dir = RunDir::new(&args.run_dir);
     let config = RunConfig::load(&dir.config())?;
     let id = args.id();
-    let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name())?;
+    let limits = wire::ShmLimits::for_processes(args.shm_processes);
+    let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name(), limits)?;
     let from = StartFrom {
         resume: args.resume,
         weights_after: args.weights_after,

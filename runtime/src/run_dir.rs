@@ -151,23 +151,28 @@ pub fn keep_previous(path: &Path) -> Result<()> {
 }
 
 /// `load(false)`, the newest generation of `newest`; when it is damaged and a previous one
-/// exists, `load(true)` with a warning naming the damaged file. Both failing is an error
-/// naming both.
-pub fn newest_or_previous<T>(newest: &Path, load: impl Fn(bool) -> Result<T>) -> Result<T> {
+/// exists, `load(true)` and a warning naming the damaged file, for the role to pass on to
+/// the launcher. Both failing is an error naming both.
+pub fn newest_or_previous<T>(
+    newest: &Path,
+    load: impl Fn(bool) -> Result<T>,
+) -> Result<(T, Option<String>)> {
     let damaged = match load(false) {
-        Ok(value) => return Ok(value),
+        Ok(value) => return Ok((value, None)),
         Err(e) if previous(newest).exists() => e,
         Err(e) => return Err(e),
     };
-    eprintln!(
-        "warning: {} is damaged ({damaged:#}); going on from the previous generation, {}",
+    let warning = format!(
+        "{} is damaged ({damaged:#}); going on from the previous generation, {}",
         newest.display(),
         previous(newest).display()
     );
-    load(true).with_context(|| {
+    eprintln!("warning: {warning}");
+    let value = load(true).with_context(|| {
         format!(
             "{} is damaged ({damaged:#}), and so is the previous generation",
             newest.display()
         )
-    })
+    })?;
+    Ok((value, Some(warning)))
 }

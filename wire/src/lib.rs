@@ -20,8 +20,11 @@ pub use codec::{PROTOCOL_VERSION, decode, encode_into};
 pub use error::{TransportError, WireError};
 pub use message::{
     BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role, SampleRequest,
-    Status, Step, Weights,
+    Status, Step, Weights, largest_step,
 };
-pub use shm::{MAX_RUN_ID, SHM_PREFIX_VAR, ShmTransport, StaleCleanup};
-pub use topic::{Delivery, Topic};
+pub use shm::{
+    LargestMessages, MAX_RUN_ID, SHM_PREFIX_VAR, ShmFootprint, ShmLimits, ShmTransport,
+    StaleCleanup,
+};
+pub use topic::{Delivery, Fan, Topic};
 pub use transport::{Inbox, Outbox, Publisher, Subscriber, Transport};

@@ -10,6 +10,19 @@ pub enum Delivery {
     Latest,
 }
 
+/// Who publishes a topic and who reads it, as a run's processes on one machine share it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fan {
+    /// One publisher, one reader: requests (learner -> buffer), batches (buffer -> learner).
+    OneToOne,
+    /// Every process may publish, one reads: steps (every actor -> the buffer), status
+    /// (every role -> the launcher).
+    ManyToOne,
+    /// One publishes, every process may read: weights (the learner -> every actor), control
+    /// (the launcher -> every role).
+    OneToMany,
+}
+
 /// A named stream of messages.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Topic {
@@ -52,6 +65,14 @@ impl Topic {
         match self {
             Topic::Steps | Topic::Requests | Topic::Batches | Topic::Control => Delivery::Lossless,
             Topic::Weights | Topic::Status => Delivery::Latest,
+        }
+    }
+
+    pub fn fan(self) -> Fan {
+        match self {
+            Topic::Requests | Topic::Batches => Fan::OneToOne,
+            Topic::Steps | Topic::Status => Fan::ManyToOne,
+            Topic::Weights | Topic::Control => Fan::OneToMany,
         }
     }
 

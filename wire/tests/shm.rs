@@ -10,13 +10,18 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use iceoryx2::prelude::{CallbackProgression, Config, MessagingPattern, Node, ServiceName, ipc};
 use iceoryx2::service::Service;
-use wire::{Control, Inbox, Message, Outbox, Role, ShmTransport, Topic, Transport, Weights, codec};
+use wire::{
+    Control, Inbox, LargestMessages, Message, Outbox, Role, ShmLimits, ShmTransport, Topic,
+    Transport, Weights, codec,
+};
 
 const ROLE: &str = "PUSHGRASP_SHM_TEST_ROLE";
 const RUN: &str = "PUSHGRASP_SHM_TEST_RUN";
 const ARG: &str = "PUSHGRASP_SHM_TEST_ARG";
 const READY: &str = "@@ready@@";
 const PATIENCE: Duration = Duration::from_secs(30);
+/// The tests' runs have a few processes each.
+const LIMITS: ShmLimits = ShmLimits::for_processes(8);
 
 fn unique_run(tag: &str) -> String {
     let nanos = SystemTime::now()
@@ -191,7 +196,7 @@ fn check_numbered(bytes: &[u8]) -> (u32, u64) {
 
 /// In a helper: sends `count` numbered messages from publisher `index` on the steps topic.
 fn send_numbered(run: &str, index: u32, count: u64) {
-    let transport = ShmTransport::new(run, &format!("publisher-{index}")).unwrap();
+    let transport = ShmTransport::new(run, &format!("publisher-{index}"), LIMITS).unwrap();
     let mut publisher = transport.publisher(Topic::Steps).unwrap();
     let mut bytes = Vec::new();
     for seq in 0..count {
@@ -210,7 +215,7 @@ fn steps_from_two_processes_all_arrive_in_order_under_back_pressure() {
     }
     let run = unique_run("steps");
     {
-        let transport = ShmTransport::new(&run, "subscriber").unwrap();
+        let transport = ShmTransport::new(&run, "subscriber", LIMITS).unwrap();
         let mut subscriber = transport.subscriber(Topic::Steps).unwrap();
         let publishers = [
             helper(TEST, "publisher", &run, "0"),
@@ -269,7 +274,7 @@ fn weights(version: u64) -> Message {
 fn a_late_subscriber_gets_only_the_newest_weights() {
     const TEST: &str = "a_late_subscriber_gets_only_the_newest_weights";
     if let Some((_, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, "learner").unwrap();
+        let transport = ShmTransport::new(&run, "learner", LIMITS).unwrap();
         let mut outbox = Outbox::open(&transport, Topic::Weights).unwrap();
         for version in 1..=3 {
             outbox.send(&weights(version)).unwrap();
@@ -288,7 +293,7 @@ fn a_late_subscriber_gets_only_the_newest_weights() {
     {
         let mut learner = helper(TEST, "learner", &run, "");
         learner.wait_ready();
-        let transport = ShmTransport::new(&run, "actor").unwrap();
+        let transport = ShmTransport::new(&run, "actor", LIMITS).unwrap();
         let mut inbox = Inbox::open(&transport, Topic::Weights).unwrap();
         let first = poll("the weights", || inbox.try_recv().unwrap());
         assert_eq!(first, weights(3));
@@ -303,8 +308,8 @@ fn a_late_subscriber_gets_only_the_newest_weights() {
 fn two_runs_stay_apart() {
     const TEST: &str = "two_runs_stay_apart";
     if let Some((_, run_a, run_b)) = helper_role() {
-        let a = ShmTransport::new(&run_a, "launcher").unwrap();
-        let b = ShmTransport::new(&run_b, "launcher").unwrap();
+        let a = ShmTransport::new(&run_a, "launcher", LIMITS).unwrap();
+        let b = ShmTransport::new(&run_b, "launcher", LIMITS).unwrap();
         let stop = |role| Message::Control(Control::Stop(role));
         // The outboxes stay until the test is done: what a publisher sent is lost if it is gone
         // before the subscriber first looks (see `wire::shm`).
@@ -318,8 +323,8 @@ fn two_runs_stay_apart() {
     }
     let (run_a, run_b) = (unique_run("a"), unique_run("b"));
     {
-        let a = ShmTransport::new(&run_a, "actor").unwrap();
-        let b = ShmTransport::new(&run_b, "actor").unwrap();
+        let a = ShmTransport::new(&run_a, "actor", LIMITS).unwrap();
+        let b = ShmTransport::new(&run_b, "actor", LIMITS).unwrap();
         let mut inbox_a = Inbox::open(&a, Topic::Control).unwrap();
         let mut inbox_b = Inbox::open(&b, Topic::Control).unwrap();
         let mut launcher = helper(TEST, "launcher", &run_a, &run_b);
@@ -341,7 +346,7 @@ fn two_runs_stay_apart() {
 fn another_protocol_version_is_refused_across_processes() {
     const TEST: &str = "another_protocol_version_is_refused_across_processes";
     if let Some((_, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, "old-actor").unwrap();
+        let transport = ShmTransport::new(&run, "old-actor", LIMITS).unwrap();
         let mut bytes = Vec::new();
         codec::encode_with_version(&Message::Control(Control::Snapshot), 99, &mut bytes);
         let mut outbox = Outbox::open(&transport, Topic::Steps).unwrap();
@@ -352,7 +357,7 @@ fn another_protocol_version_is_refused_across_processes() {
     }
     let run = unique_run("version");
     {
-        let transport = ShmTransport::new(&run, "buffer").unwrap();
+        let transport = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
         let mut inbox = Inbox::open(&transport, Topic::Steps).unwrap();
         let mut actor = helper(TEST, "old-actor", &run, "");
         actor.wait_ready();
@@ -373,7 +378,7 @@ fn what_a_killed_publisher_delivered_is_still_received() {
     }
     let run = unique_run("killed-pub");
     {
-        let transport = ShmTransport::new(&run, "buffer").unwrap();
+        let transport = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
         let mut subscriber = transport.subscriber(Topic::Steps).unwrap();
         let mut actor = helper(TEST, "actor", &run, "");
         let next = std::cell::Cell::new(0);
@@ -427,7 +432,7 @@ fn sent_before_kill() -> u64 {
 /// In a helper: sends [`sent_before_kill`] numbered messages, says it is ready, and waits
 /// to be killed.
 fn send_numbered_and_hang(run: &str) {
-    let transport = ShmTransport::new(run, "actor").unwrap();
+    let transport = ShmTransport::new(run, "actor", LIMITS).unwrap();
     let mut publisher = transport.publisher(Topic::Steps).unwrap();
     let mut bytes = Vec::new();
     for seq in 0..sent_before_kill() {
@@ -444,7 +449,7 @@ fn send_numbered_and_hang(run: &str) {
 fn a_publisher_waiting_on_a_killed_subscriber_goes_on_after_cleanup() {
     const TEST: &str = "a_publisher_waiting_on_a_killed_subscriber_goes_on_after_cleanup";
     if let Some((_, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, "buffer").unwrap();
+        let transport = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
         let _subscriber = transport.subscriber(Topic::Steps).unwrap();
         say_ready();
         wait_for_stdin_to_close();
@@ -454,7 +459,7 @@ fn a_publisher_waiting_on_a_killed_subscriber_goes_on_after_cleanup() {
     {
         let mut buffer = helper(TEST, "buffer", &run, "");
         buffer.wait_ready();
-        let transport = Arc::new(ShmTransport::new(&run, "actor").unwrap());
+        let transport = Arc::new(ShmTransport::new(&run, "actor", LIMITS).unwrap());
         let sent = Arc::new(AtomicUsize::new(0));
         let sender = {
             let (transport, sent) = (transport.clone(), sent.clone());
@@ -489,7 +494,7 @@ fn a_publisher_waiting_on_a_killed_subscriber_goes_on_after_cleanup() {
 fn a_dropped_subscriber_does_not_block_a_lossless_publisher() {
     let run = unique_run("dropped-sub");
     {
-        let transport = ShmTransport::new(&run, "both").unwrap();
+        let transport = ShmTransport::new(&run, "both", LIMITS).unwrap();
         let inbox = Inbox::open(&transport, Topic::Batches).unwrap();
         let mut outbox = Outbox::open(&transport, Topic::Batches).unwrap();
         let message = Message::Control(Control::Stop(Role::Learner));
@@ -505,7 +510,7 @@ fn a_dropped_subscriber_does_not_block_a_lossless_publisher() {
 #[test]
 fn bad_run_ids_are_refused_with_the_reason() {
     for bad in ["", "a/b", "run id", "../x"] {
-        let err = ShmTransport::new(bad, "x").err().expect("refused");
+        let err = ShmTransport::new(bad, "x", LIMITS).err().expect("refused");
         assert!(err.to_string().contains("run id"), "{err}");
     }
 }
@@ -581,7 +586,7 @@ fn files_named(names: &[String]) -> Vec<String> {
 fn a_run_leaves_no_files_behind_even_after_a_kill() {
     const TEST: &str = "a_run_leaves_no_files_behind_even_after_a_kill";
     if let Some((role, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, &role).unwrap();
+        let transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
         let mut steps = transport.publisher(Topic::Steps).unwrap();
         let mut weights = Outbox::open(&transport, Topic::Weights).unwrap();
         steps.send(&[1; 100_000]).unwrap();
@@ -592,7 +597,7 @@ fn a_run_leaves_no_files_behind_even_after_a_kill() {
     }
     let run = unique_run("files");
     let names = {
-        let transport = ShmTransport::new(&run, "buffer").unwrap();
+        let transport = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
         let mut steps = transport.subscriber(Topic::Steps).unwrap();
         let mut weights = Inbox::open(&transport, Topic::Weights).unwrap();
         let mut killed = helper(TEST, "killed", &run, "");
@@ -623,7 +628,7 @@ fn a_run_leaves_no_files_behind_even_after_a_kill() {
 fn a_service_left_unsized_by_a_killed_process_is_removed() {
     const TEST: &str = "a_service_left_unsized_by_a_killed_process_is_removed";
     if let Some((role, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, &role).unwrap();
+        let transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
         let _steps = transport.publisher(Topic::Steps).unwrap();
         say_ready();
         wait_for_stdin_to_close();
@@ -666,4 +671,108 @@ fn a_service_left_unsized_by_a_killed_process_is_removed() {
         .recv_timeout(PATIENCE)
         .expect("cleaning up after the killed process hung on the unsized service");
     assert_run_left_nothing(&run);
+}
+
+#[test]
+fn a_topic_admits_the_processes_of_its_run_and_names_the_limit_past_them() {
+    let run = unique_run("limits");
+    let limits = ShmLimits::for_processes(40);
+    // A process for each, as in a run: 80 nodes (each process, and a dead one's room).
+    let transports: Vec<ShmTransport> = (0..81)
+        .map(|i| ShmTransport::new(&run, &format!("role-{i}"), limits).unwrap())
+        .collect();
+    let mut orders = Vec::new();
+    for transport in &transports[..80] {
+        orders.push(transport.subscriber(Topic::Control).unwrap());
+    }
+    let err = transports[80]
+        .subscriber(Topic::Control)
+        .err()
+        .expect("the 81st process is refused")
+        .to_string();
+    assert!(err.contains("a run of 40 processes"), "{err}");
+}
+
+/// The bytes of the run's shared-memory segments: as their files' sizes say (reserved), and
+/// as their pages are (written).
+fn segment_bytes(run: &str) -> (u64, u64) {
+    use std::os::unix::fs::MetadataExt;
+    let mut bytes = (0, 0);
+    for file in files_named(&iceoryx2_names_of(run)) {
+        if file.starts_with("/dev/shm/") && file.ends_with(".data") {
+            let meta = std::fs::metadata(&file).unwrap();
+            bytes.0 += meta.len();
+            bytes.1 += meta.blocks() * 512;
+        }
+    }
+    bytes
+}
+
+#[test]
+fn a_runs_footprint_is_what_its_segments_reserve_and_bounds_what_they_hold() {
+    let run = unique_run("footprint");
+    let processes = 3;
+    let limits = ShmLimits::for_processes(processes);
+    let largest = LargestMessages {
+        step: 100_000,
+        batch: 30_000,
+        weights: 200_000,
+    };
+    let transports: Vec<ShmTransport> = (0..processes)
+        .map(|i| ShmTransport::new(&run, &format!("p{i}"), limits).unwrap())
+        .collect();
+    // Every port the footprint counts: each process publishes steps and status and reads
+    // weights and control; the first reads steps, status and requests, publishes weights,
+    // control and batches; the second the other way round.
+    let mut readers = Vec::new();
+    for transport in &transports {
+        readers.push(transport.subscriber(Topic::Weights).unwrap());
+        readers.push(transport.subscriber(Topic::Control).unwrap());
+    }
+    for topic in [Topic::Steps, Topic::Status, Topic::Requests] {
+        readers.push(transports[0].subscriber(topic).unwrap());
+    }
+    readers.push(transports[1].subscriber(Topic::Batches).unwrap());
+    let mut sent = Vec::new();
+    for transport in &transports {
+        for topic in [Topic::Steps, Topic::Status] {
+            let mut publisher = transport.publisher(topic).unwrap();
+            publisher
+                .send(&vec![1; largest_of(&largest, topic)])
+                .unwrap();
+            sent.push(publisher);
+        }
+    }
+    for (transport, topic) in [
+        (&transports[0], Topic::Weights),
+        (&transports[0], Topic::Control),
+        (&transports[0], Topic::Batches),
+        (&transports[1], Topic::Requests),
+    ] {
+        let mut publisher = transport.publisher(topic).unwrap();
+        publisher
+            .send(&vec![1; largest_of(&largest, topic)])
+            .unwrap();
+        sent.push(publisher);
+    }
+    let footprint = limits.footprint(&largest);
+    let (reserved, written) = segment_bytes(&run);
+    // The segments' headers come on top (0.6% here).
+    assert!(
+        reserved >= footprint.reserved && reserved < footprint.reserved + footprint.reserved / 20,
+        "{reserved} reserved against {footprint:?}"
+    );
+    assert!(
+        written <= footprint.written,
+        "{written} written against {footprint:?}"
+    );
+}
+
+fn largest_of(largest: &LargestMessages, topic: Topic) -> usize {
+    match topic {
+        Topic::Steps => largest.step,
+        Topic::Batches => largest.batch,
+        Topic::Weights => largest.weights,
+        _ => 1000,
+    }
 }

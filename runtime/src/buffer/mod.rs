@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use mcaplog::{LogLevel, RunLog};
-use wire::{Inbox, Message, Outbox, Topic, Transport};
+use wire::{Inbox, Message, Outbox, Role, Status, Topic, Transport};
 
 use crate::config::RunConfig;
 use crate::record::BUFFER_EPISODE;
@@ -44,8 +44,9 @@ pub fn run(
     lifeline: &Lifeline,
 ) -> Result<BufferReport> {
     let mut role = BufferRole::new(config, start.incarnation)?;
+    let mut warning = None;
     if start.resume && (dir.snapshot().exists() || previous(&dir.snapshot()).exists()) {
-        role.restore(dir)?;
+        warning = role.restore(dir)?;
         let stats = role.replay.stats();
         let message = format!(
             "restored {} stored items and {} episodes from the snapshot",
@@ -56,6 +57,13 @@ pub fn run(
         log.log_line(LogLevel::Info, &message)?;
     }
     let mut ports = Ports::open(transport, start.incarnation)?;
+    if let Some(warning) = warning {
+        log.log_line(LogLevel::Warning, &warning)?;
+        let role = Role::Buffer;
+        ports
+            .status
+            .send(&Message::Status(Status::Warning { role, warning }))?;
+    }
     // The first report says the buffer listens: the launcher starts actors only then.
     ports.status.send(&Message::Status(role.status()))?;
     let mut inflow = Inflow::new(config.actors + config.run.remote_actors);

@@ -135,10 +135,10 @@ impl BufferRole {
         })
     }
 
-    /// The replay, counters and open episodes the run directory's snapshot holds.
-    /// (A damaged newest snapshot or its counters: the previous pair, with a warning.)
-    pub(super) fn restore(&mut self, dir: &RunDir) -> Result<()> {
-        let (replay, saved) = newest_or_previous(&dir.snapshot(), |before| {
+    /// The replay, counters and open episodes the run directory's snapshot holds. A damaged
+    /// newest snapshot or its counters: the previous pair, and the warning returned.
+    pub(super) fn restore(&mut self, dir: &RunDir) -> Result<Option<String>> {
+        let ((replay, saved), warning) = newest_or_previous(&dir.snapshot(), |before| {
             let pick = |path: PathBuf| if before { previous(&path) } else { path };
             let replay = ReplayBuffer::load(&pick(dir.snapshot()))?;
             let saved: SavedState = read_json(&pick(dir.buffer_counters()))?;
@@ -154,7 +154,7 @@ impl BufferRole {
             self.streams
                 .insert(key, (count.clone(), episodes.into_iter().collect()));
         }
-        Ok(())
+        Ok(warning)
     }
 
     /// Carries out the launcher's orders (a snapshot at once); which of them stop something.

@@ -108,9 +108,16 @@ pub fn run(
     lifeline: &Lifeline,
 ) -> Result<LearnerReport> {
     let mut role = LearnerRole::new(config, log, dir)?;
-    role.start_from(start.resume)?;
+    let warning = role.start_from(start.resume)?;
     role.continue_versions(start.weights_after);
     let mut ports = Ports::open(transport)?;
+    if let Some(warning) = warning {
+        log.log_line(LogLevel::Warning, &warning)?;
+        let role = Role::Learner;
+        ports
+            .status
+            .send(&Message::Status(Status::Warning { role, warning }))?;
+    }
     role.publish(&mut ports.weights)?;
     let mut asked = Requests::new(start.incarnation);
     let mut last_status = Instant::now();
@@ -219,8 +226,9 @@ impl<'a> LearnerRole<'a> {
     }
 
     /// Continues from the run's checkpoint when resuming one that has it, else starts from
-    /// `init_from`'s nets (an earlier stage's) if the config names them.
-    fn start_from(&mut self, resume: bool) -> Result<()> {
+    /// `init_from`'s nets (an earlier stage's) if the config names them. Returns the warning
+    /// when the newest checkpoint was damaged and the previous one was taken.
+    fn start_from(&mut self, resume: bool) -> Result<Option<String>> {
         let config = self.config;
         let newest = self.checkpoint.dir().to_path_buf();
         let saved = [newest.clone(), previous(&newest)]
@@ -229,7 +237,7 @@ impl<'a> LearnerRole<'a> {
         if resume && saved {
             // A damaged newest checkpoint: the previous one, with a warning.
             let hash = config_hash(&config.net);
-            let saved = newest_or_previous(&newest, |before| {
+            let (saved, warning) = newest_or_previous(&newest, |before| {
                 let dir = if before {
                     previous(&newest)
                 } else {
@@ -250,6 +258,7 @@ impl<'a> LearnerRole<'a> {
             }
             self.trainer.resume(&saved)?;
             self.updates_before = manifest.updates;
+            return Ok(warning);
         } else if let Some(init) = &config.init_from {
             // An earlier stage's nets: its weights, this stage's fresh update count.
             let saved = Checkpoint::at(init).load(&config_hash(&config.net))?;
@@ -263,7 +272,7 @@ impl<'a> LearnerRole<'a> {
             }
             self.trainer.load_weights(&saved.weights)?;
         }
-        Ok(())
+        Ok(None)
     }
 
     fn updates(&self) -> u64 {

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use mcaplog::{LogLevel, RunLog};
 use serde::{Deserialize, Serialize};
-use wire::{ChannelTransport, Control, Message, Outbox, Role};
+use wire::{ChannelTransport, Control, Message, Outbox, Role, ShmLimits};
 
 use crate::config::RunConfig;
 use crate::role::{RoleId, StartFrom, run_role};
@@ -30,13 +30,25 @@ const HUNG: &str = "sent no status report";
 /// How long the buffer or the learner may be silent before the roles that wait on it are
 /// not judged by their own silence (they report four times a second).
 const QUIET: Duration = Duration::from_secs(1);
+/// What a user can do after the buffer or the learner failed for good: what they saved
+/// before (the rotating generations) is intact.
+pub const RESUME_HINT: &str = "the run's last checkpoint and buffer snapshot stand: \
+     `pushgrasp train --resume --run-id <id>` (or `pipeline` with its `--id`) continues it \
+     once that is fixed";
 /// How long a role may take to stop once told to.
 const STOP_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// How the launcher starts roles.
 pub enum Wiring {
-    Processes { namespace: String },
-    Threads { transport: ChannelTransport },
+    /// Role processes meeting in this launch's shared memory, whose topics they open with
+    /// the run's limits.
+    Processes {
+        namespace: String,
+        limits: ShmLimits,
+    },
+    Threads {
+        transport: ChannelTransport,
+    },
 }
 
 struct Slot {
@@ -66,6 +78,11 @@ pub struct Supervisor {
     pub log: RunLog,
     /// Restarts per actor index.
     crashes: BTreeMap<u32, u32>,
+    /// Roles started again after a failure, of every kind.
+    restarts: u32,
+    /// The cause of each role's (actor index's, buffer's, learner's) latest failure before
+    /// it first reported: the same again is a configuration error, not bad luck.
+    startup_failures: BTreeMap<(&'static str, u32), String>,
     /// Every role that failed, in order.
     pub faults: Vec<Fault>,
     started: Instant,
@@ -88,6 +105,8 @@ impl Supervisor {
             slots: Vec::new(),
             log,
             crashes: BTreeMap::new(),
+            restarts: 0,
+            startup_failures: BTreeMap::new(),
             faults: Vec::new(),
             started: Instant::now(),
             buffer: RoleId::Buffer(0),
@@ -116,13 +135,14 @@ impl Supervisor {
     pub fn start(&mut self, spec: RoleId) -> Result<()> {
         beat(&self.dir, &mut self.last_beat)?;
         let worker = match &self.wiring {
-            Wiring::Processes { namespace } => {
+            Wiring::Processes { namespace, limits } => {
                 let mut command = Command::new(std::env::current_exe()?);
                 command
                     .args(["role", spec.kind().name()])
                     .arg("--run-dir")
                     .arg(self.dir.path())
-                    .args(["--shm-namespace", namespace]);
+                    .args(["--shm-namespace", namespace])
+                    .args(["--shm-processes", &limits.processes().to_string()]);
                 let from = self.start_from(spec);
                 if from.resume {
                     command.arg("--resume");
@@ -254,73 +274,114 @@ impl Supervisor {
     }
 
     /// Deals with roles that exited: restarts each as its next incarnation, until one fails
-    /// too often (then the run ends with the reason).
+    /// too often, or twice the same way before it first reported (then the run ends with
+    /// the reason). `last_heard`: when each reporter was last heard from.
     /// `weights_version`: the newest the learner reported, which a restarted one passes.
-    pub fn check(&mut self, failures: &[String], weights_version: u64) -> Result<()> {
+    pub fn check(
+        &mut self,
+        failures: &[String],
+        last_heard: &BTreeMap<String, Instant>,
+        weights_version: u64,
+    ) -> Result<()> {
         beat(&self.dir, &mut self.last_beat)?;
         let mut exited = Vec::new();
         for slot in self.slots.iter_mut().filter(|s| !s.done) {
             if let Some(outcome) = slot.worker.finished() {
                 slot.done = true;
-                exited.push((slot.spec, slot.hung.take().map_or(outcome, Err)));
+                let reported = last_heard
+                    .get(&slot.spec.reporter())
+                    .is_some_and(|&at| at >= slot.started);
+                exited.push((slot.spec, slot.hung.take().map_or(outcome, Err), reported));
             }
         }
-        for (spec, outcome) in exited {
+        for (spec, outcome, reported) in exited {
+            let why = self.cause(spec, outcome, failures);
+            self.refuse_a_loop(spec, &why, reported)?;
             let RoleId::Actor(id) = spec else {
-                self.restart_singleton(spec, outcome, failures, weights_version)?;
+                self.restart_singleton(spec, why, weights_version)?;
                 continue;
             };
-            let why = outcome.err().unwrap_or_else(|| "stopped by itself".into());
-            let message = format!("{} {why}; starting it again", spec.name());
-            eprintln!("{message}");
-            self.log.log_line(LogLevel::Warning, &message)?;
             let crashes = self.crashes.entry(id.index).or_insert(0);
             *crashes += 1;
             let crashes = *crashes;
             self.record_fault(spec.name(), &why, crashes <= MAX_RESTARTS);
             if crashes > MAX_RESTARTS {
-                bail!("actor {} crashed {crashes} times; giving up", id.index);
+                bail!(
+                    "actor {} crashed {crashes} times; giving up: {why}",
+                    id.index
+                );
             }
+            self.announce(&format!("{} failed: {why}; starting it again", spec.name()))?;
+            self.restarts += 1;
             self.start(spec.next_incarnation())?;
         }
         Ok(())
     }
 
-    /// Starts the buffer or the learner again from its newest saved state, after it exited
-    /// (or was killed for its silence); gives up on the run after [`MAX_ROLE_RESTARTS`].
-    fn restart_singleton(
-        &mut self,
-        spec: RoleId,
-        outcome: Result<(), String>,
-        failures: &[String],
-        weights_version: u64,
-    ) -> Result<()> {
-        let log = self.dir.log(&spec.name());
+    /// Why a role exited: killed for its silence, the error its log ends with (a process's),
+    /// the failure it announced (a thread's), or how its process ended.
+    fn cause(&self, spec: RoleId, outcome: Result<(), String>, failures: &[String]) -> String {
         let hung = outcome.as_ref().err().filter(|why| why.contains(HUNG));
-        let why = hung
-            .cloned()
+        hung.cloned()
+            .or_else(|| last_error(&self.dir.log(&spec.name())))
             .or_else(|| {
                 failures
                     .iter()
                     .find(|f| f.starts_with(&spec.name()))
                     .cloned()
             })
-            .or_else(|| last_error(&log))
             .or_else(|| outcome.err())
-            .unwrap_or_else(|| "exited before it was told to".into());
+            .unwrap_or_else(|| "exited before it was told to".into())
+    }
+
+    /// Ends the run when a role failed before it first reported, as its predecessor did and
+    /// for the same reason: started again, it would fail again.
+    fn refuse_a_loop(&mut self, spec: RoleId, why: &str, reported: bool) -> Result<()> {
+        let lineage = match spec {
+            RoleId::Actor(id) => (Role::Actor.name(), id.index),
+            other => (other.kind().name(), 0),
+        };
+        if reported {
+            self.startup_failures.remove(&lineage);
+            return Ok(());
+        }
+        if self.startup_failures.get(&lineage).map(String::as_str) == Some(why) {
+            self.record_fault(spec.name(), why, false);
+            bail!(
+                "the {} failed twice the same way as it started, so it is not started again: \
+                 {why} (see {})",
+                spec.name(),
+                self.dir.log(&spec.name()).display()
+            );
+        }
+        self.startup_failures.insert(lineage, why.to_string());
+        Ok(())
+    }
+
+    /// Says `message` on the console and in the launcher's log.
+    pub fn announce(&mut self, message: &str) -> Result<()> {
+        eprintln!("{message}");
+        Ok(self.log.log_line(LogLevel::Warning, message)?)
+    }
+
+    /// Starts the buffer or the learner again from its newest saved state, after it exited
+    /// (or was killed for its silence); gives up on the run after [`MAX_ROLE_RESTARTS`].
+    fn restart_singleton(&mut self, spec: RoleId, why: String, weights_version: u64) -> Result<()> {
         let restart = spec.incarnation() < MAX_ROLE_RESTARTS;
         self.record_fault(spec.name(), &why, restart);
         if !restart {
             bail!(
-                "the {} failed {} times; giving up: {why} (see {})",
+                "the {} failed {} times; giving up: {why} (see {}); {RESUME_HINT}",
                 spec.kind(),
                 spec.incarnation() + 1,
-                log.display()
+                self.dir.log(&spec.name()).display()
             );
         }
-        let message = format!("the {} {why}; starting it again", spec.name());
-        eprintln!("{message}");
-        self.log.log_line(LogLevel::Warning, &message)?;
+        self.announce(&format!(
+            "the {} failed: {why}; starting it again",
+            spec.name()
+        ))?;
+        self.restarts += 1;
         let next = spec.next_incarnation();
         match next {
             RoleId::Learner(_) => {
@@ -416,16 +477,17 @@ impl Supervisor {
             };
             slot.done = true;
             if let Err(why) = outcome {
-                problems.push(format!("{} {why}", slot.spec.name()));
+                let why = last_error(&self.dir.log(&slot.spec.name())).unwrap_or(why);
+                problems.push(format!("{}: {why}", slot.spec.name()));
             }
         }
         self.write_processes()?;
         Ok(problems)
     }
 
-    /// Actor restarts so far.
+    /// Roles started again after a failure so far: actors, the buffer and the learner.
     pub fn restarts(&self) -> u32 {
-        self.crashes.values().sum()
+        self.restarts
     }
 
     pub fn kill_all(&mut self) {

@@ -2,8 +2,9 @@
 //!
 //! Each process owns one iceoryx2 node; each topic is a publish-subscribe service of byte
 //! slices named `pushgrasp/<run id>/<topic>`, so two runs on one machine never meet. Every
-//! process opens a topic with the same settings, whoever comes first creates it. A
-//! subscriber reads a message in place, in the publisher's shared memory.
+//! process opens a topic with the same settings, whoever comes first creates it, and with
+//! limits sized from the run's processes ([`ShmLimits`]). A subscriber reads a message in
+//! place, in the publisher's shared memory.
 //!
 //! What iceoryx2 does that a caller must know:
 //! - A subscriber connects to a new publisher when it next looks for messages. Until then
@@ -42,18 +43,14 @@ use crate::error::TransportError;
 use crate::topic::{Delivery, Topic};
 use crate::transport::{Publisher, Subscriber, Transport};
 
+mod limits;
+pub use limits::{LargestMessages, ShmFootprint, ShmLimits};
+
 /// Every name this transport gives starts with this.
 const PREFIX: &str = "pushgrasp";
 
 /// Longest run id accepted (iceoryx2 limits node names to 128 bytes).
 pub const MAX_RUN_ID: usize = 64;
-
-/// Publishers a topic admits at once: actors restart, and a dead one's port stays until it
-/// is cleaned up.
-const MAX_PUBLISHERS: usize = 64;
-
-/// Processes that may open a topic at once.
-const MAX_NODES: usize = 128;
 
 /// The slice a publisher reserves first; larger messages grow it in powers of two.
 const INITIAL_SLICE: usize = 4096;
@@ -67,6 +64,7 @@ const CLEANUP_WAIT: Duration = Duration::from_millis(500);
 pub struct ShmTransport {
     node: Node<ipc::Service>,
     run_id: String,
+    limits: ShmLimits,
 }
 
 /// What [`ShmTransport::remove_stale`] found of a run.
@@ -83,8 +81,9 @@ pub struct StaleCleanup {
 
 impl ShmTransport {
     /// Joins run `run_id` as a process named `node_name` (its iceoryx2 node is named
-    /// `pushgrasp/<run id>/<node name>`). Removes what killed processes left first.
-    pub fn new(run_id: &str, node_name: &str) -> Result<Self, TransportError> {
+    /// `pushgrasp/<run id>/<node name>`), opening topics with the run's `limits`. Removes what
+    /// killed processes left first.
+    pub fn new(run_id: &str, node_name: &str, limits: ShmLimits) -> Result<Self, TransportError> {
         check_run_id(run_id)?;
         let name = format!("{PREFIX}/{run_id}/{node_name}");
         let name = NodeName::new(&name).map_err(|e| TransportError::Setup {
@@ -103,6 +102,7 @@ impl ShmTransport {
         Ok(Self {
             node,
             run_id: run_id.to_owned(),
+            limits,
         })
     }
 
@@ -150,6 +150,14 @@ impl ShmTransport {
         Ok(report)
     }
 
+    /// What a failed port creation was, with the limit that may have refused it.
+    fn ports(&self, kind: &str, admitted: usize) -> String {
+        format!(
+            "creating one of the {admitted} {kind} it admits in a run of {} processes",
+            self.limits.processes()
+        )
+    }
+
     /// Opens (or creates) a topic's service with the settings every process uses.
     fn open_topic(
         &self,
@@ -161,9 +169,9 @@ impl ShmTransport {
         self.node
             .service_builder(&name)
             .publish_subscribe::<[u8]>()
-            .max_publishers(MAX_PUBLISHERS)
-            .max_subscribers(max_subscribers(topic))
-            .max_nodes(MAX_NODES)
+            .max_publishers(self.limits.publishers(topic))
+            .max_subscribers(self.limits.subscribers(topic))
+            .max_nodes(self.limits.nodes())
             .subscriber_max_buffer_size(topic.buffer())
             // The message its sink is reading, and those it keeps back (see `kept`).
             .subscriber_max_borrowed_samples(kept(topic) + 1)
@@ -173,9 +181,11 @@ impl ShmTransport {
             .map_err(|e| TransportError::Backend {
                 topic: topic.name(),
                 why: format!(
-                    "cannot open the iceoryx2 service {name}: {e} (a process of another \
-                     pushgrasp build in this run, or an earlier run's leftovers: \
-                     remove stale resources or choose another run id)"
+                    "cannot open the iceoryx2 service {name}, sized for a run of {} \
+                     processes: {e} (more processes than that, a process of another \
+                     pushgrasp build or with other limits in this run, or an earlier run's \
+                     leftovers: remove stale resources or choose another run id)",
+                    self.limits.processes()
                 ),
             })
     }
@@ -188,19 +198,6 @@ fn is_of_run(name: &str, run_id: &str) -> bool {
         .and_then(|rest| rest.strip_prefix('/'))
         .and_then(|rest| rest.strip_prefix(run_id))
         .is_some_and(|rest| rest.starts_with('/') || rest.starts_with('-'))
-}
-
-/// Subscribers a topic admits at once. iceoryx2 sizes each publisher's shared memory for the
-/// worst case, max subscribers x (buffer + 1 read + `kept`) + history + 2 messages, each
-/// rounded up to a power of two (0.5 MB steps take 1 MB: 4 x (4 + 1 + 3) + 2, about 34 MB per
-/// actor). Only what is written takes memory, but the topics with one reader keep this small.
-fn max_subscribers(topic: Topic) -> usize {
-    match topic {
-        // Every actor, or every role, reads these.
-        Topic::Weights | Topic::Control => 64,
-        // One reader (the buffer, the learner, the launcher), and room to spare.
-        Topic::Steps | Topic::Requests | Topic::Batches | Topic::Status => 4,
-    }
 }
 
 /// Messages a subscriber keeps back after reading them, before it returns them to their
@@ -283,7 +280,10 @@ impl Transport for ShmTransport {
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .initial_max_slice_len(INITIAL_SLICE)
             .create()
-            .map_err(|e| backend(topic, "creating a publisher", e))?;
+            .map_err(|e| {
+                let admitted = self.limits.publishers(topic);
+                backend(topic, &self.ports("publishers", admitted), e)
+            })?;
         Ok(Box::new(ShmPublisher {
             topic,
             publisher,
@@ -293,10 +293,10 @@ impl Transport for ShmTransport {
 
     fn subscriber(&self, topic: Topic) -> Result<Box<dyn Subscriber>, TransportError> {
         let service = self.open_topic(topic)?;
-        let subscriber = service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| backend(topic, "creating a subscriber", e))?;
+        let subscriber = service.subscriber_builder().create().map_err(|e| {
+            let admitted = self.limits.subscribers(topic);
+            backend(topic, &self.ports("subscribers", admitted), e)
+        })?;
         Ok(Box::new(ShmSubscriber {
             topic,
             subscriber,

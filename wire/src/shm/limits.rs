@@ -1,0 +1,149 @@
+//! How large a run's shared memory is: the publishers, subscribers and nodes each topic
+//! admits, sized from the run's processes on this machine, and the memory that takes.
+//!
+//! iceoryx2 fixes a service's limits when the first process creates it and refuses a port
+//! past them (`ExceedsMaxSupportedSubscribers`), and it reserves each publisher's memory for
+//! the worst case its limits allow: max subscribers times the messages each may hold
+//! (buffer and borrowed), plus history and the publisher's loans, each message rounded up
+//! to a power of two. A reserved page takes memory only once written (the segments are
+//! sparse files in /dev/shm), so a run's footprint is two figures: what its files reserve,
+//! and what its messages can write at most.
+
+use crate::topic::{Fan, Topic};
+
+use super::{INITIAL_SLICE, kept};
+
+/// Ports and nodes a topic admits per process of the run: its own, and those of a dead
+/// predecessor not yet removed (a restarted role removes dead nodes as it starts).
+const PER_PROCESS: usize = 2;
+
+/// Publishers of a topic that has one, or subscribers of a topic that one reads: it, its
+/// restarted successor while the dead one is not yet removed, and room to spare.
+const SINGLE: usize = 4;
+
+/// Messages a publisher may hold on loan at once (iceoryx2's default).
+const LOANS: usize = 2;
+
+/// The processes of one run on one machine that open its topics (a launcher or a joined
+/// host, and the roles it starts), from which every topic's limits follow. Every process of
+/// the run must open its topics with the same limits, so the launcher gives its own to the
+/// roles it starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShmLimits {
+    processes: usize,
+}
+
+/// The largest message of the topics whose messages can outgrow the first slice a
+/// publisher reserves, in bytes as encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LargestMessages {
+    pub step: usize,
+    pub batch: usize,
+    pub weights: usize,
+}
+
+impl LargestMessages {
+    fn of(&self, topic: Topic) -> usize {
+        match topic {
+            Topic::Steps => self.step,
+            Topic::Batches => self.batch,
+            Topic::Weights => self.weights,
+            Topic::Requests | Topic::Control | Topic::Status => INITIAL_SLICE,
+        }
+    }
+}
+
+/// A run's shared memory in bytes: what its publishers' files reserve, and what their
+/// messages can write at most when every reader holds as many as it may.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ShmFootprint {
+    pub reserved: u64,
+    pub written: u64,
+}
+
+impl ShmLimits {
+    /// Limits for a run of `processes` processes on this machine (at least one).
+    pub const fn for_processes(processes: usize) -> Self {
+        Self {
+            processes: if processes == 0 { 1 } else { processes },
+        }
+    }
+
+    pub fn processes(self) -> usize {
+        self.processes
+    }
+
+    pub(super) fn nodes(self) -> usize {
+        PER_PROCESS * self.processes
+    }
+
+    pub(super) fn publishers(self, topic: Topic) -> usize {
+        match topic.fan() {
+            Fan::ManyToOne => PER_PROCESS * self.processes,
+            Fan::OneToOne | Fan::OneToMany => SINGLE,
+        }
+    }
+
+    pub(super) fn subscribers(self, topic: Topic) -> usize {
+        match topic.fan() {
+            Fan::OneToMany => PER_PROCESS * self.processes,
+            Fan::OneToOne | Fan::ManyToOne => SINGLE,
+        }
+    }
+
+    /// The shared memory of the run's live publishers, every one of a topic sending its
+    /// largest message.
+    pub fn footprint(self, largest: &LargestMessages) -> ShmFootprint {
+        let mut footprint = ShmFootprint::default();
+        for topic in Topic::ALL {
+            let (publishers, readers) = match topic.fan() {
+                Fan::OneToOne => (1, 1),
+                Fan::ManyToOne => (self.processes, 1),
+                Fan::OneToMany => (1, self.processes),
+            };
+            let slot = largest.of(topic).max(INITIAL_SLICE).next_power_of_two() as u64;
+            // A reader holds its unread buffer, the message it reads and those it keeps.
+            let held = topic.buffer() + 1 + kept(topic);
+            let slots = |subscribers: usize| (subscribers * held + topic.history() + LOANS) as u64;
+            footprint.reserved += publishers as u64 * slots(self.subscribers(topic)) * slot;
+            footprint.written += publishers as u64 * slots(readers) * slot;
+        }
+        footprint
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limits_grow_with_the_run_where_every_process_takes_part() {
+        let small = ShmLimits::for_processes(5);
+        let large = ShmLimits::for_processes(131);
+        assert_eq!(large.subscribers(Topic::Control), 262);
+        assert_eq!(large.publishers(Topic::Steps), 262);
+        assert_eq!(large.nodes(), 262);
+        for topic in [Topic::Requests, Topic::Batches] {
+            assert_eq!(small.publishers(topic), large.publishers(topic));
+            assert_eq!(small.subscribers(topic), large.subscribers(topic));
+        }
+        assert_eq!(ShmLimits::for_processes(0).processes(), 1);
+    }
+
+    #[test]
+    fn a_footprint_counts_whole_power_of_two_slots() {
+        let largest = LargestMessages {
+            step: 100_000,
+            batch: 3_000,
+            weights: 200_000,
+        };
+        let one = ShmLimits::for_processes(1).footprint(&largest);
+        let two = ShmLimits::for_processes(2).footprint(&largest);
+        // One more process: one more publisher of steps (one reader holding 4 + 1 + 3, and
+        // 2 loans, of 128 KiB), of status (1 x (256 + 1) + 2 of 4 KiB); one more reader of
+        // weights (1 + 1 of 256 KiB) and of control (16 + 1 of 4 KiB).
+        let written = 10 * 131_072 + 259 * 4096 + 2 * 262_144 + 17 * 4096;
+        assert_eq!(two.written - one.written, written);
+        assert!(two.reserved > two.written && one.reserved > one.written);
+    }
+}
