@@ -165,6 +165,23 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
     assert_cpu_times(&summary, true);
 }
 
+/// 64 actors: more than the shared-memory limits of a fixed size admitted (every actor past
+/// the 60th crash-looped); the services sized from the run take them all.
+#[test]
+fn sixty_four_actor_processes_meet_their_budget_and_lose_nothing() {
+    let logs = logs();
+    let printed = train_ok(
+        logs.path(),
+        &["--actors", "64", "--episodes", "128", "--run-id", "wide"],
+    );
+    assert!(printed.contains("67 processes, shared memory"), "{printed}");
+    let summary = summary(logs.path(), "wide");
+    assert_eq!(u(&summary["restarts"]), 0, "{}", summary["faults"]);
+    assert_eq!(summary["actors_reports"].as_array().unwrap().len(), 64);
+    assert!(u(&summary["buffer"]["episodes"]) >= 128);
+    assert_lossless(logs.path(), "wide");
+}
+
 /// Each role in its own process reports the CPU time it used over its working time, more
 /// than none and no more than all the cores for that long; roles in threads of one process
 /// report none.

@@ -23,20 +23,24 @@ pub struct E2eBenchArgs {
     /// The run config.
     #[arg(long, default_value = "configs/stage1.toml")]
     config: String,
-    /// Episodes per run.
+    /// Episodes per run, at least two per environment.
     #[arg(long, default_value_t = 40)]
     episodes: u64,
+    /// The runs' environment counts, one run each: actor processes of one environment each
+    /// (`--environments 1,2,4,64,128`).
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 4])]
+    environments: Vec<u32>,
 }
 
 pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
     let logs = tempfile::tempdir()?;
     let mut figures = Map::new();
     figures.insert("episodes_per_run".into(), args.episodes.into());
-    for actors in [1u32, 2, 4] {
+    for &actors in &args.environments {
         let summary = train_run(
             Path::new(&args.config),
             actors,
-            args.episodes,
+            args.episodes.max(2 * u64::from(actors)),
             logs.path(),
             &format!("bench-e2e-{actors}"),
         )?;
