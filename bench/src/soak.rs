@@ -5,7 +5,8 @@
 //! (5%). Resident memory is split as the kernel counts it: the process's own (anonymous:
 //! its heap, where a leak shows), pages of files it maps (its program's code, paged in as
 //! new paths run) and shared memory it has touched (the topics' segments, bounded by their
-//! sizes).
+//! sizes). End against start does not tell a plateau from a ratchet, so each process's
+//! slope over the last third of the window is printed too, and whether it still grows.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -24,6 +25,10 @@ use runtime::{RunDir, read_json};
 
 /// The growth a process's memory may show over the measured window.
 const BOUND_PCT: f64 = 5.0;
+
+/// A process whose fitted rise over the last third of the window is less than this share
+/// of its resident memory has levelled off; more, and it still grows.
+const LEVEL_PCT: f64 = 1.0;
 
 #[derive(Args)]
 pub struct SoakBenchArgs {
@@ -171,12 +176,55 @@ fn growth(
                 figures.insert(format!("{kind}_mb_{process}_start"), round(begin));
                 figures.insert(format!("{kind}_mb_{process}_end"), round(end));
             }
+            let series: Vec<(f64, f64)> = samples
+                .iter()
+                .filter(|(at, _)| *at >= from)
+                .filter_map(|(at, rss)| Some((at.as_secs_f64(), rss.get(process)?.rss)))
+                .collect();
+            let (per_h, grows) = last_third(&series);
+            figures.insert(format!("rss_mb_per_h_last_third_{process}"), round(per_h));
+            figures.insert(format!("still_grows_{process}"), grows.into());
         }
     }
     figures.insert("rss_growth_pct_max".into(), round(most));
     figures.insert("anon_growth_pct_max".into(), round(most_anon));
     figures.insert("rss_growth_pct_bound".into(), BOUND_PCT.into());
     figures
+}
+
+/// The least-squares slope (MB an hour) of resident memory over the last third of a series
+/// of (seconds, MB), and whether the rise it fits over that third is past [`LEVEL_PCT`] of
+/// the memory: a ratchet still climbs there, a plateau does not.
+fn last_third(series: &[(f64, f64)]) -> (f64, bool) {
+    let Some(&(end, _)) = series.last() else {
+        return (0.0, false);
+    };
+    let begin = series[0].0 + (end - series[0].0) * 2.0 / 3.0;
+    let third: Vec<(f64, f64)> = series
+        .iter()
+        .copied()
+        .filter(|&(t, _)| t >= begin)
+        .collect();
+    let n = third.len() as f64;
+    if third.len() < 2 {
+        return (0.0, false);
+    }
+    let (mean_t, mean_mb) = (
+        third.iter().map(|p| p.0).sum::<f64>() / n,
+        third.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let covariance: f64 = third
+        .iter()
+        .map(|(t, mb)| (t - mean_t) * (mb - mean_mb))
+        .sum();
+    let variance: f64 = third.iter().map(|(t, _)| (t - mean_t).powi(2)).sum();
+    let per_s = if variance > 0.0 {
+        covariance / variance
+    } else {
+        0.0
+    };
+    let rise = per_s * (end - begin);
+    (per_s * 3600.0, rise > mean_mb * LEVEL_PCT / 100.0)
 }
 
 /// Whether the run's newest progress record shows its replay full (both rings).
@@ -206,4 +254,32 @@ fn config_with_capacity(config: &Path, capacity: Option<u64>, scratch: &Path) ->
     let copy = scratch.join("soak.toml");
     std::fs::write(&copy, toml::to_string(&table)?)?;
     Ok(copy)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 15 minutes sampled every 10 s: a rise of 10 MB in the first third, then `then`.
+    fn series(then: impl Fn(f64) -> f64) -> Vec<(f64, f64)> {
+        (0..=90)
+            .map(|i| {
+                let t = f64::from(i) * 10.0;
+                let early = 10.0 * (t / 300.0).min(1.0);
+                (t, 100.0 + early + then(t))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_plateau_and_a_ratchet_read_differently() {
+        let (per_h, grows) = last_third(&series(|_| 0.0));
+        assert!(per_h.abs() < 1e-9 && !grows);
+        // 2 MB steps every 100 s from the start: 6 MB over the last third.
+        let (per_h, grows) = last_third(&series(|t| 2.0 * (t / 100.0).floor()));
+        assert!((per_h - 72.0).abs() < 8.0 && grows, "{per_h}");
+        // Half a megabyte near the end of a 110 MB process: a fitted rise under 1%.
+        let (_, grows) = last_third(&series(|t| if t > 800.0 { 0.5 } else { 0.0 }));
+        assert!(!grows);
+    }
 }
