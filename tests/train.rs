@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -169,6 +170,7 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
 /// the 60th crash-looped); the services sized from the run take them all.
 #[test]
 fn sixty_four_actor_processes_meet_their_budget_and_lose_nothing() {
+    let _turn = one_at_a_time();
     let logs = logs();
     let printed = train_ok(
         logs.path(),
@@ -636,17 +638,27 @@ fn fault_once(
     (status.success(), pid)
 }
 
+/// The tests that judge roles by a 3 s heartbeat and the 64-actor run, which takes every
+/// core, run one at a time: beside that run, a role just started can be silent for 3 s.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// The stage-1 config with a 3 s heartbeat timeout and a buffer snapshot every second,
-/// written into `logs`.
-fn impatient_config(logs: &Path) -> std::path::PathBuf {
-    stage1::stage1_with(
+/// written into `logs`, and the turn of a test that uses it ([`one_at_a_time`]).
+fn impatient_config(logs: &Path) -> (std::path::PathBuf, MutexGuard<'static, ()>) {
+    let turn = one_at_a_time();
+    let config = stage1::stage1_with(
         logs,
         "impatient",
         &[
             ("run.heartbeat_timeout_s", toml::Value::Float(3.0)),
             ("buffer.snapshot_every_s", toml::Value::Float(1.0)),
         ],
-    )
+    );
+    (config, turn)
 }
 
 /// What a run whose learner was restarted must show: the run reached its budget, the fault
@@ -688,7 +700,7 @@ fn a_killed_learner_is_restarted_and_its_weight_versions_keep_rising() {
 #[test]
 fn a_hung_learner_is_noticed_killed_and_restarted() {
     let logs = logs();
-    let config = impatient_config(logs.path());
+    let (config, _turn) = impatient_config(logs.path());
     let (ok, learner) = role_fault(&config, logs.path(), "hung", "learner", "STOP");
     assert!(ok, "the run failed after the learner hung");
     assert_learner_restarted(logs.path(), "hung", "no status report");
@@ -701,7 +713,7 @@ fn a_hung_learner_is_noticed_killed_and_restarted() {
 #[test]
 fn a_hung_actor_is_killed_and_restarted() {
     let logs = logs();
-    let config = impatient_config(logs.path());
+    let (config, _turn) = impatient_config(logs.path());
     let (ok, actor) = role_fault(&config, logs.path(), "actor-hangs", "actor-0-0", "STOP");
     assert!(ok, "the run failed after an actor hung");
     let actor_summary = summary(logs.path(), "actor-hangs");
@@ -789,7 +801,7 @@ fn assert_buffer_restarted(logs: &Path, run: &str, cause: &str) {
 #[test]
 fn a_killed_or_hung_buffer_is_restarted_from_its_snapshot_with_the_loss_counted() {
     let logs = logs();
-    let config = impatient_config(logs.path());
+    let (config, _turn) = impatient_config(logs.path());
     let (ok, _) = buffer_fault(&config, logs.path(), "buffer-dies", "KILL");
     assert!(ok, "the run failed after the buffer was killed");
     assert_buffer_restarted(logs.path(), "buffer-dies", "signal: 9");

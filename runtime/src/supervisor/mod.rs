@@ -335,13 +335,15 @@ impl Supervisor {
     }
 
     /// Ends the run when a role failed before it first reported, as its predecessor did and
-    /// for the same reason: started again, it would fail again.
+    /// for the same reason: started again, it would fail again. A role killed for its
+    /// silence did not fail by itself (a machine too busy for it to start in time): it is
+    /// restarted as any crash.
     fn refuse_a_loop(&mut self, spec: RoleId, why: &str, reported: bool) -> Result<()> {
         let lineage = match spec {
             RoleId::Actor(id) => (Role::Actor.name(), id.index),
             other => (other.kind().name(), 0),
         };
-        if reported {
+        if reported || why.contains(HUNG) {
             self.startup_failures.remove(&lineage);
             return Ok(());
         }
