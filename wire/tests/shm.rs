@@ -634,28 +634,34 @@ fn a_service_left_unsized_by_a_killed_process_is_removed() {
         wait_for_stdin_to_close();
         return;
     }
-    let run = unique_run("unsized");
-    let mut killed = helper(TEST, "killed", &run, "");
-    killed.wait_ready();
-    let dynamic: Vec<String> = files_named(&iceoryx2_names_of(&run))
-        .into_iter()
-        .filter(|file| file.starts_with("/dev/shm/") && file.ends_with(".dynamic"))
-        .collect();
-    assert_eq!(
-        dynamic.len(),
-        1,
-        "the service's dynamic config: {dynamic:?}"
-    );
-    let dynamic = std::path::PathBuf::from(&dynamic[0]);
-    killed.kill();
-    // What a process killed between creating the service's dynamic config and sizing it
-    // leaves behind: the shared memory at size zero.
-    std::fs::OpenOptions::new()
-        .write(true)
-        .open(&dynamic)
-        .unwrap()
-        .set_len(0)
-        .unwrap();
+    // A new process of another test may clean up after the killed one before this test
+    // truncates its service: then the case did not arise, and it is set up again.
+    let (run, dynamic) = (0..5)
+        .find_map(|_| {
+            let run = unique_run("unsized");
+            let mut killed = helper(TEST, "killed", &run, "");
+            killed.wait_ready();
+            let dynamic: Vec<String> = files_named(&iceoryx2_names_of(&run))
+                .into_iter()
+                .filter(|file| file.starts_with("/dev/shm/") && file.ends_with(".dynamic"))
+                .collect();
+            assert_eq!(
+                dynamic.len(),
+                1,
+                "the service's dynamic config: {dynamic:?}"
+            );
+            let dynamic = std::path::PathBuf::from(&dynamic[0]);
+            killed.kill();
+            // What a process killed between creating the service's dynamic config and sizing
+            // it leaves behind: the shared memory at size zero.
+            let file = std::fs::OpenOptions::new()
+                .write(true)
+                .open(&dynamic)
+                .ok()?;
+            file.set_len(0).unwrap();
+            Some((run, dynamic))
+        })
+        .expect("five times, another process cleaned up before the service was truncated");
     // Cleaning up after the dead process (every new process does) must finish, removing the
     // service. Another test's new process may be the one that does it.
     let (done, cleaned) = std::sync::mpsc::channel();
