@@ -142,6 +142,13 @@ pub fn run_role(
     result
 }
 
+/// Passes a role's warning on to the launcher, which prints it, and into the role's log.
+pub fn warn(status: &mut Outbox, log: &RunLog, role: Role, warning: String) -> Result<()> {
+    log.log_line(LogLevel::Warning, &warning)?;
+    status.send(&Message::Status(Status::Warning { role, warning }))?;
+    Ok(())
+}
+
 /// A process's MCAP log in the run directory, opened with the run's resolved config.
 pub fn open_log(dir: &RunDir, name: &str, config: &RunConfig) -> Result<RunLog> {
     if !config.logging.enabled {

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use mcaplog::{LogLevel, RunLog};
-use wire::{Inbox, Message, Outbox, Role, Status, Topic, Transport};
+use wire::{Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::config::RunConfig;
 use crate::record::BUFFER_EPISODE;
@@ -58,11 +58,7 @@ pub fn run(
     }
     let mut ports = Ports::open(transport, start.incarnation)?;
     if let Some(warning) = warning {
-        log.log_line(LogLevel::Warning, &warning)?;
-        let role = Role::Buffer;
-        ports
-            .status
-            .send(&Message::Status(Status::Warning { role, warning }))?;
+        crate::role::warn(&mut ports.status, log, Role::Buffer, warning)?;
     }
     // The first report says the buffer listens: the launcher starts actors only then.
     ports.status.send(&Message::Status(role.status()))?;

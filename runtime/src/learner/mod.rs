@@ -112,11 +112,7 @@ pub fn run(
     role.continue_versions(start.weights_after);
     let mut ports = Ports::open(transport)?;
     if let Some(warning) = warning {
-        log.log_line(LogLevel::Warning, &warning)?;
-        let role = Role::Learner;
-        ports
-            .status
-            .send(&Message::Status(Status::Warning { role, warning }))?;
+        crate::role::warn(&mut ports.status, log, Role::Learner, warning)?;
     }
     role.publish(&mut ports.weights)?;
     let mut asked = Requests::new(start.incarnation);
