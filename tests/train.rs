@@ -184,6 +184,49 @@ fn sixty_four_actor_processes_meet_their_budget_and_lose_nothing() {
     assert_lossless(logs.path(), "wide");
 }
 
+/// Four environments to an actor process (`envs_per_actor`): each plays as an actor process
+/// of its own would, with its own report, episodes and gap-free stream of steps, while the
+/// run holds two actor processes, not eight.
+#[test]
+fn an_actor_process_steps_several_environments_each_with_its_own_stream() {
+    let logs = logs();
+    let printed = train_ok(
+        logs.path(),
+        &[
+            "--actors",
+            "2",
+            "--set",
+            "envs_per_actor=4",
+            "--episodes",
+            "48",
+            "--run-id",
+            "batched",
+        ],
+    );
+    assert!(printed.contains("2 actors x 4 environments"), "{printed}");
+    assert!(printed.contains("5 processes, shared memory"), "{printed}");
+    let summary = summary(logs.path(), "batched");
+    assert_eq!(u(&summary["restarts"]), 0, "{}", summary["faults"]);
+    let reports = summary["actors_reports"].as_array().unwrap();
+    let environments: Vec<u64> = reports.iter().map(|r| u(&r["actor"])).collect();
+    assert_eq!(environments, (0..8).collect::<Vec<u64>>());
+    for report in reports {
+        assert!(
+            u(&report["episodes"]) > 0,
+            "an environment played no episode: {report}"
+        );
+        assert!(report["peak_rss_mb"].as_f64().unwrap() > 0.0, "{report}");
+    }
+    assert_cpu_times(&summary, true);
+    assert_lossless(logs.path(), "batched");
+    // One process (and one log) per four environments.
+    let dir = logs.path().join("batched");
+    for (process, exists) in [(0, true), (1, false), (4, true), (5, false)] {
+        let log = dir.join(format!("actor-{process}-0.mcap"));
+        assert_eq!(log.exists(), exists, "{}", log.display());
+    }
+}
+
 /// Each role in its own process reports the CPU time it used over its working time, more
 /// than none and no more than all the cores for that long; roles in threads of one process
 /// report none.

@@ -28,6 +28,16 @@ pub struct Choice {
     pub push: Option<QMaps>,
 }
 
+/// What one environment decides on: what it sees, its goal, the pushes of its episode so
+/// far, and its own exploration.
+pub struct Situation<'a> {
+    pub obs: &'a Heightmaps,
+    pub goal: ObjectId,
+    pub pushes_so_far: usize,
+    pub epsilon: f32,
+    pub rng: &'a mut ChaCha8Rng,
+}
+
 /// Why an agent could not decide.
 #[derive(Debug, thiserror::Error)]
 pub enum AgentError {
@@ -86,56 +96,88 @@ impl Agent {
         epsilon: f32,
         rng: &mut ChaCha8Rng,
     ) -> Result<Choice, AgentError> {
-        let input = NetInput::encode(obs, goal);
-        let (grasp, push) = match self.mode {
-            Mode::PushGrasp => {
-                let [grasp, push] = self.q_maps_of([Primitive::Grasp, Primitive::Push], &input)?;
-                (grasp, Some(push))
-            }
-            Mode::GraspOnly => (self.q_maps(Primitive::Grasp, &input)?, None),
-        };
-        let policy_input = PolicyInput {
+        let situation = Situation {
             obs,
             goal,
-            grasp: &grasp,
-            push: push.as_ref(),
             pushes_so_far,
+            epsilon,
+            rng,
         };
-        let decision = policy::choose(&self.policy, self.mode, &policy_input, epsilon, rng)?;
-        Ok(Choice {
-            decision,
-            grasp,
-            push,
-        })
+        let mut choices = self.decide_each(vec![situation])?;
+        Ok(choices.pop().expect("one situation, one choice"))
+    }
+
+    /// [`Agent::decide`] in each of `situations` (several environments at once): their Q
+    /// maps as one batch, then each one's choice with its own exploration.
+    pub fn decide_each(&self, situations: Vec<Situation<'_>>) -> Result<Vec<Choice>, AgentError> {
+        let inputs: Vec<NetInput> = situations
+            .iter()
+            .map(|s| NetInput::encode(s.obs, s.goal))
+            .collect();
+        let inputs: Vec<&NetInput> = inputs.iter().collect();
+        let maps: Vec<(QMaps, Option<QMaps>)> = match self.mode {
+            Mode::PushGrasp => self
+                .q_maps_of_each([Primitive::Grasp, Primitive::Push], &inputs)?
+                .into_iter()
+                .map(|[grasp, push]| (grasp, Some(push)))
+                .collect(),
+            Mode::GraspOnly => self
+                .q_maps_of_each([Primitive::Grasp], &inputs)?
+                .into_iter()
+                .map(|[grasp]| (grasp, None))
+                .collect(),
+        };
+        situations
+            .into_iter()
+            .zip(maps)
+            .map(|(s, (grasp, push))| {
+                let policy_input = PolicyInput {
+                    obs: s.obs,
+                    goal: s.goal,
+                    grasp: &grasp,
+                    push: push.as_ref(),
+                    pushes_so_far: s.pushes_so_far,
+                };
+                let decision =
+                    policy::choose(&self.policy, self.mode, &policy_input, s.epsilon, s.rng)?;
+                Ok(Choice {
+                    decision,
+                    grasp,
+                    push,
+                })
+            })
+            .collect()
     }
 
     /// One primitive's Q maps for all rotations: `nets`' alone, or the mean over the ensemble.
     pub fn q_maps(&self, primitive: Primitive, input: &NetInput) -> Result<QMaps, AgentError> {
-        let [maps] = self.q_maps_of([primitive], input)?;
+        let mut maps = self.q_maps_of_each([primitive], &[input])?;
+        let [maps] = maps.pop().expect("one input, one set of maps");
         Ok(maps)
     }
 
-    /// [`Agent::q_maps`] of each of `primitives`, each net rotating the input once for all.
-    fn q_maps_of<const N: usize>(
+    /// [`Agent::q_maps`] of each of `primitives` for each of `inputs`, each net rotating
+    /// each input once for all of them.
+    fn q_maps_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
-        input: &NetInput,
-    ) -> Result<[QMaps; N], AgentError> {
+        inputs: &[&NetInput],
+    ) -> Result<Vec<[QMaps; N]>, AgentError> {
         let mut maps = self
             .acting
-            .all_rotations_of(primitives, input, &self.geometry)?;
+            .all_rotations_of_each(primitives, inputs, &self.geometry)?;
         if self.ensemble.is_empty() {
             return Ok(maps);
         }
         for nets in &self.ensemble {
-            let more = nets.all_rotations_of(primitives, input, &self.geometry)?;
-            for (sum, more) in maps.iter_mut().zip(&more) {
+            let more = nets.all_rotations_of_each(primitives, inputs, &self.geometry)?;
+            for (sum, more) in maps.iter_mut().flatten().zip(more.iter().flatten()) {
                 let sum = sum.values_mut().iter_mut();
                 sum.zip(more.values()).for_each(|(s, q)| *s += q);
             }
         }
         let members = (1 + self.ensemble.len()) as f32;
-        for mean in &mut maps {
+        for mean in maps.iter_mut().flatten() {
             mean.values_mut().iter_mut().for_each(|s| *s /= members);
         }
         Ok(maps)

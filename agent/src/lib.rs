@@ -7,6 +7,6 @@ mod agent;
 pub mod evaluate;
 pub mod metrics;
 
-pub use agent::{Agent, AgentError, Choice};
+pub use agent::{Agent, AgentError, Choice, Situation};
 pub use evaluate::{EvalConfig, Scene, evaluate};
 pub use metrics::{ActionRecord, CaseMetrics, RunOutcome, RunRecord};

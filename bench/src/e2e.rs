@@ -1,9 +1,11 @@
 //! `pushgrasp bench e2e`: the whole system's throughput. Real `train` runs (processes over
-//! shared memory) with 1, 2 and 4 actors; actions per second summed over the actors (each
-//! actor's actions over its own acting time, so process start-up is left out) and the
-//! learner's updates per second, read from the runs' reports; and what an action and an
-//! update cost in CPU time (each role's process over the same time), which leaves out the
-//! time a role waits: on the rate limiter, or for a core the other roles hold.
+//! shared memory) with 1, 2 and 4 environments, each in an actor process of its own or K to
+//! a process (`--envs-per-actor`); actions per second summed over the environments (each
+//! one's actions over its own acting time, so process start-up is left out) and the
+//! learner's updates per second, read from the runs' reports; what an action and an update
+//! cost in CPU time (each role's process over the same time), which leaves out the time a
+//! role waits: on the rate limiter, or for a core the other roles hold; and the actors'
+//! peak resident memory per environment.
 
 use std::path::Path;
 use std::process::Command;
@@ -26,45 +28,64 @@ pub struct E2eBenchArgs {
     /// Episodes per run, at least two per environment.
     #[arg(long, default_value_t = 40)]
     episodes: u64,
-    /// The runs' environment counts, one run each: actor processes of one environment each
-    /// (`--environments 1,2,4,64,128`).
+    /// The runs' environment counts (`--environments 1,2,4,64,128`).
     #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 4])]
     environments: Vec<u32>,
+    /// Environments per actor process (`--envs-per-actor 1,2,4,8`): one run for each count
+    /// of environments it divides. A figure's name ends in the environments, then `_k` and
+    /// this count where it is above 1.
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32])]
+    envs_per_actor: Vec<u32>,
 }
 
 pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
     let logs = tempfile::tempdir()?;
     let mut figures = Map::new();
     figures.insert("episodes_per_run".into(), args.episodes.into());
-    for &actors in &args.environments {
+    let runs = args.environments.iter().flat_map(|&environments| {
+        args.envs_per_actor
+            .iter()
+            .filter(move |&&k| k > 0 && environments % k == 0)
+            .map(move |&k| (environments, k))
+    });
+    for (environments, k) in runs {
         let summary = train_run(
             Path::new(&args.config),
-            actors,
-            args.episodes.max(2 * u64::from(actors)),
+            environments / k,
+            &[format!("envs_per_actor={k}")],
+            args.episodes.max(2 * u64::from(environments)),
             logs.path(),
-            &format!("bench-e2e-{actors}"),
+            &format!("bench-e2e-{environments}-{k}"),
         )?;
+        let suffix = match k {
+            1 => format!("_{environments}"),
+            k => format!("_{environments}_k{k}"),
+        };
         let learner = &summary["learner"];
-        let updates_per_s = learner["session_updates"].as_f64().unwrap_or(0.0)
-            / learner["training_s"].as_f64().unwrap_or(1.0).max(1e-9);
-        figures.insert(
-            format!("actions_per_s_{actors}"),
-            round(actions_per_s(&summary)),
-        );
-        figures.insert(
-            format!("learner_updates_per_s_{actors}"),
-            round(updates_per_s),
-        );
         let updates = learner["session_updates"].as_f64().unwrap_or(0.0);
-        let (actor_cpu_s, actions) = actors_cpu_s_and_actions(&summary);
-        let learner_cpu_s = learner["cpu_s"].as_f64().unwrap_or(0.0);
-        figures.insert(
-            format!("actor_cpu_ms_per_action_{actors}"),
-            round(1e3 * actor_cpu_s / actions.max(1.0)),
+        let updates_per_s = updates / learner["training_s"].as_f64().unwrap_or(1.0).max(1e-9);
+        let mut put = |name: &str, value: f64| {
+            figures.insert(format!("{name}{suffix}"), round(value));
+        };
+        put("actions_per_s", actions_per_s(&summary));
+        put("learner_updates_per_s", updates_per_s);
+        let reports = summary["actors_reports"]
+            .as_array()
+            .map_or(&[][..], Vec::as_slice);
+        let sum =
+            |key: &str| -> f64 { reports.iter().map(|r| r[key].as_f64().unwrap_or(0.0)).sum() };
+        put(
+            "actor_cpu_ms_per_action",
+            1e3 * sum("cpu_s") / sum("actions").max(1.0),
         );
-        figures.insert(
-            format!("learner_cpu_ms_per_update_{actors}"),
-            round(1e3 * learner_cpu_s / updates.max(1.0)),
+        let learner_cpu_s = learner["cpu_s"].as_f64().unwrap_or(0.0);
+        put(
+            "learner_cpu_ms_per_update",
+            1e3 * learner_cpu_s / updates.max(1.0),
+        );
+        put(
+            "actor_peak_rss_mb_per_env",
+            sum("peak_rss_mb") / (reports.len().max(1) as f64),
         );
     }
     print_figures(&Value::Object(figures), args.json)
@@ -75,6 +96,7 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
 pub(super) fn train_run(
     config: &Path,
     actors: u32,
+    settings: &[String],
     episodes: u64,
     logs: &Path,
     name: &str,
@@ -85,6 +107,7 @@ pub(super) fn train_run(
         .arg("--config")
         .arg(config)
         .args(["--actors", &actors.to_string()])
+        .args(settings.iter().flat_map(|s| ["--set", s]))
         .args(["--episodes", &episodes.to_string()])
         .args(["--run-id", &run_id])
         .arg("--logs")
@@ -109,15 +132,6 @@ pub(super) fn actions_per_s(summary: &Value) -> f64 {
         .flatten()
         .map(|r| r["actions"].as_f64().unwrap_or(0.0) / r["acting_s"].as_f64().unwrap_or(1.0))
         .sum()
-}
-
-/// The CPU seconds of a run's actors over their acting time, and their actions, summed.
-fn actors_cpu_s_and_actions(summary: &Value) -> (f64, f64) {
-    let reports = summary["actors_reports"]
-        .as_array()
-        .map_or(&[][..], Vec::as_slice);
-    let sum = |key: &str| -> f64 { reports.iter().map(|r| r[key].as_f64().unwrap_or(0.0)).sum() };
-    (sum("cpu_s"), sum("actions"))
 }
 
 pub(super) fn round(x: f64) -> Value {

@@ -8,6 +8,7 @@ use clap::{Args, Subcommand};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use runtime::backend::Backend;
+use runtime::stopwatch::status_mb;
 use serde::Serialize;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop};
@@ -130,20 +131,6 @@ pub fn run(command: BenchCommand) -> Result<()> {
         BenchCommand::Soak(args) => soak::bench_soak(&args),
         BenchCommand::GraspRanking(args) => grasp_ranking::bench_grasp_ranking(&args),
     }
-}
-
-/// A size line ("VmRSS:", "VmHWM:") of `/proc/<process>/status` in MB (`process`: a pid or
-/// `self`), where there is one.
-fn status_mb(process: &str, field: &str) -> Option<f64> {
-    let status = std::fs::read_to_string(format!("/proc/{process}/status")).ok()?;
-    let line = status.lines().find(|line| line.starts_with(field))?;
-    let kb: f64 = line[field.len()..]
-        .trim()
-        .trim_end_matches("kB")
-        .trim()
-        .parse()
-        .ok()?;
-    Some(kb / 1024.0)
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -349,7 +336,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             (0..reps)
                 .map(|_| {
                     let primitives = [Primitive::Push, Primitive::Grasp];
-                    let run = || acting.all_rotations_of(primitives, &input, &geometry);
+                    let run = || acting.all_rotations_of_each(primitives, &[&input], &geometry);
                     ms(timed(|| run().expect("inference")).1)
                 })
                 .collect(),

@@ -70,7 +70,7 @@ pub fn bench_logging(args: &LoggingBenchArgs) -> Result<()> {
             } else {
                 (&off, "bench-log-off", &mut without)
             };
-            let summary = train_run(config, 1, args.episodes, work.path(), name)?;
+            let summary = train_run(config, 1, &[], args.episodes, work.path(), name)?;
             figures.push(actions_per_s(&summary));
             let _ = std::fs::remove_dir_all(work.path().join(summary_run_id(&summary)));
         }
@@ -85,6 +85,7 @@ pub fn bench_logging(args: &LoggingBenchArgs) -> Result<()> {
     let summary = train_run(
         &sized_path,
         1,
+        &[],
         args.size_episodes,
         work.path(),
         "bench-log-size",

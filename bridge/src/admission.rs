@@ -19,8 +19,12 @@ pub struct Admission {
     pub run_id: String,
     /// The run's resolved config (TOML), handed to every host.
     pub config: String,
-    /// Actors of the central host itself: indices `0..local_actors`; hosts' come after.
+    /// The environments of the central host's own actors: indices `0..local_actors`; hosts'
+    /// come after.
     pub local_actors: u32,
+    /// The run's environments per actor process: a host's `--actors N` take `N` times as
+    /// many indices.
+    pub envs_per_actor: u32,
     /// Where the hosts' places are kept, so a resumed run gives a host the same indices.
     pub hosts_file: PathBuf,
 }
@@ -29,7 +33,8 @@ pub struct Admission {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct HostReport {
     pub host: String,
-    /// Its actors are indices `first_actor..first_actor + actors`.
+    /// Its actors' environments are indices `first_actor..first_actor + actors` (one per
+    /// actor process unless the run's `envs_per_actor` says more).
     pub first_actor: u32,
     pub actors: u32,
     /// Times it joined (1 for a host that never left).
@@ -144,20 +149,23 @@ impl Hosts {
             .values()
             .map(|h| h.first_actor + h.actors)
             .fold(self.admission.local_actors, u32::max);
+        let envs_per_actor = self.admission.envs_per_actor.max(1);
+        let indices = request.actors * envs_per_actor;
         let host = self
             .hosts
             .entry(request.host.clone())
             .or_insert_with(|| HostReport {
                 host: request.host.clone(),
                 first_actor: next_free,
-                actors: request.actors,
+                actors: indices,
                 ..HostReport::default()
             });
-        if host.actors != request.actors {
+        if host.actors != indices {
             return refuse(format!(
                 "host {:?} joined this run before with {} actors: join with as many, or under \
                  another --host-name",
-                host.host, host.actors
+                host.host,
+                host.actors / envs_per_actor
             ));
         }
         let placement = Placement {
@@ -193,6 +201,7 @@ mod tests {
             run_id: "r".into(),
             config: "stage = 1".into(),
             local_actors: 2,
+            envs_per_actor: 1,
             hosts_file: dir.join("hosts.json"),
         })
         .unwrap()

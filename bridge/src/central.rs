@@ -451,6 +451,7 @@ mod tests {
                 run_id: "r".into(),
                 config: String::new(),
                 local_actors: 1,
+                envs_per_actor: 1,
                 hosts_file: dir.path().join("hosts.json"),
             })
             .unwrap(),

@@ -43,19 +43,29 @@ impl ActingNets {
         }
     }
 
-    /// Q maps of each of `primitives` for all rotations; in the CPU's inference form each
-    /// input rotation is computed once for all of them.
-    pub fn all_rotations_of<const N: usize>(
+    /// Q maps of each of `primitives` for all rotations, for each of `inputs` (several
+    /// environments' at one decision). In the CPU's inference form each input rotation is
+    /// computed once for all the primitives, and the batch is one: every input rotation of
+    /// every input spread over the cores together.
+    pub fn all_rotations_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
-        input: &NetInput,
+        inputs: &[&NetInput],
         geometry: &Geometry,
-    ) -> Result<[QMaps; N], QNetError> {
+    ) -> Result<Vec<[QMaps; N]>, QNetError> {
         match self {
-            ActingNets::Cpu(inference) => inference.all_rotations_of(primitives, input, geometry),
-            ActingNets::Device(nets) => try_map(primitives, |primitive| {
-                nets.all_rotations(primitive, input, geometry)
-            }),
+            ActingNets::Cpu(inference) => {
+                inference.all_rotations_of_each(primitives, inputs, geometry)
+            }
+            // burn's forward on a device: one input after another.
+            ActingNets::Device(nets) => inputs
+                .iter()
+                .map(|input| {
+                    try_map(primitives, |primitive| {
+                        nets.all_rotations(primitive, input, geometry)
+                    })
+                })
+                .collect(),
         }
     }
 
@@ -76,20 +86,18 @@ impl ActingNets {
     }
 }
 
-/// The maps of every rotation as [`QMaps`], for each of `N` primitives, from a function giving
-/// each one's maps of the rotations asked for.
-pub(crate) fn every_rotation<const N: usize>(
-    geometry: &Geometry,
-    maps: impl FnOnce(&[u8]) -> Result<[Vec<f32>; N], QNetError>,
-) -> Result<[QMaps; N], QNetError> {
-    let rotations: Vec<u8> = (0..ROTATIONS).collect();
-    try_map(maps(&rotations)?, |values| {
-        Ok(QMaps::new(ROTATIONS, geometry.side(), values)?)
-    })
+/// Every rotation, in order.
+pub(crate) fn every_rotation() -> Vec<u8> {
+    (0..ROTATIONS).collect()
+}
+
+/// One primitive's maps of every rotation, one `side x side` map after another, as [`QMaps`].
+pub(crate) fn q_maps(geometry: &Geometry, values: Vec<f32>) -> Result<QMaps, QNetError> {
+    Ok(QMaps::new(ROTATIONS, geometry.side(), values)?)
 }
 
 /// `items` through `f`, stopping at the first error (arrays' own `try_map` is unstable).
-fn try_map<A, B, const N: usize>(
+pub(crate) fn try_map<A, B, const N: usize>(
     items: [A; N],
     f: impl FnMut(A) -> Result<B, QNetError>,
 ) -> Result<[B; N], QNetError> {

@@ -13,7 +13,7 @@ use sim::Primitive;
 
 use policy::QMaps;
 
-use crate::acting::every_rotation;
+use crate::acting::{every_rotation, q_maps};
 use crate::config::QNetConfig;
 use crate::equivariant;
 use crate::error::QNetError;
@@ -225,10 +225,8 @@ impl QNets {
         input: &NetInput,
         geometry: &Geometry,
     ) -> Result<QMaps, QNetError> {
-        let [maps] = every_rotation(geometry, |rotations| {
-            Ok([self.rotations(primitive, input, rotations, geometry)?])
-        })?;
-        Ok(maps)
+        let values = self.rotations(primitive, input, &every_rotation(), geometry)?;
+        q_maps(geometry, values)
     }
 
     /// The Q maps of one primitive at `rotations`, one `side x side` map after another.

@@ -115,6 +115,46 @@ fn the_inference_form_gives_burns_q_maps_for_rotation_equivariant_nets() {
 }
 
 #[test]
+fn a_batch_of_inputs_gives_each_input_its_own_q_maps() {
+    // Several environments' decisions as one batch (`envs_per_actor`): each input's maps are
+    // exactly those it gets alone, in the order given, for a net with four passes too.
+    for rotation_equivariant in [false, true] {
+        let config = QNetConfig {
+            rotation_equivariant,
+            ..QNetConfig::default()
+        };
+        let inputs = [
+            scene_input(0.004, 1),
+            scene_input(0.004, 3),
+            scene_input(0.004, 2),
+        ];
+        let geometry = Geometry::new(inputs[0].side, &config);
+        let nets = trained_nets(&config, &geometry, &inputs[0]);
+        let inference = Inference::new(&nets).unwrap();
+        let primitives = [Primitive::Push, Primitive::Grasp];
+        let batch: Vec<&NetInput> = inputs.iter().collect();
+        let each = inference
+            .all_rotations_of_each(primitives, &batch, &geometry)
+            .unwrap();
+        assert_eq!(each.len(), inputs.len());
+        for (input, maps) in inputs.iter().zip(&each) {
+            let alone = inference
+                .all_rotations_of(primitives, input, &geometry)
+                .unwrap();
+            for (got, want) in maps.iter().zip(&alone) {
+                assert_eq!(
+                    got.values(),
+                    want.values(),
+                    "equivariant {rotation_equivariant}"
+                );
+            }
+        }
+        // Different goals give different maps: the batch did not hand one input's to all.
+        assert_ne!(each[0][1].values(), each[1][1].values());
+    }
+}
+
+#[test]
 fn the_convolutions_alone_give_the_maps_before_the_rotations() {
     // `low_maps` of two rotated inputs equals burn's forward of the same planes.
     let config = QNetConfig::default();

@@ -35,6 +35,12 @@ pub struct RunConfig {
     pub grasp_trials: usize,
     /// Actor processes when `--actors` is not given.
     pub actors: u32,
+    /// Environments each actor process steps (Sample Factory's workers), their decisions'
+    /// inference one batch: process `i` plays environments `i * envs_per_actor ..`, each
+    /// with its own seed, exploration, episodes and stream of steps, as an actor process of
+    /// its own would.
+    #[serde(default = "one_environment")]
+    pub envs_per_actor: u32,
     /// The run ends once this many episodes have ended (counted by the buffer).
     pub episodes: u64,
     /// ... or once the learner has taken this many updates (0: no limit).
@@ -52,8 +58,9 @@ pub struct RunConfig {
     /// or "none" (the ablation without a push reward).
     #[serde(default)]
     pub push_reward: policy::PushReward,
-    /// Ape-X exploration instead of the policy's decaying schedule: actor i of N explores
-    /// with a fixed epsilon^(1 + alpha i / (N - 1)).
+    /// Ape-X exploration instead of the policy's decaying schedule: environment i of N
+    /// (every actor process's, here and on joined hosts) explores with a fixed
+    /// epsilon^(1 + alpha i / (N - 1)).
     #[serde(default)]
     pub apex_epsilon: Option<ApexEpsilon>,
     #[serde(default)]
@@ -251,6 +258,9 @@ impl RunConfig {
                 self.stage
             );
         }
+        if self.envs_per_actor == 0 {
+            bail!("envs_per_actor: must be at least 1");
+        }
         if self.actors == 0 && self.run.remote_actors == 0 {
             bail!("actors: must be at least 1 (0 only with run.remote_actors on joined hosts)");
         }
@@ -304,10 +314,26 @@ impl RunConfig {
         Ok(needed)
     }
 
-    /// Actor `index`'s exploration rate after it took `actions` actions.
+    /// The environments of the run's actors, here and on joined hosts.
+    pub fn environments(&self) -> u32 {
+        (self.actors + self.run.remote_actors) * self.envs_per_actor
+    }
+
+    /// The first environment of each of `processes` actor processes whose environments
+    /// start at `from`.
+    pub fn first_environments(
+        &self,
+        from: u32,
+        processes: u32,
+    ) -> impl Iterator<Item = u32> + use<> {
+        let k = self.envs_per_actor;
+        (0..processes).map(move |p| from + p * k)
+    }
+
+    /// Environment `index`'s exploration rate after it took `actions` actions.
     pub fn epsilon(&self, index: u32, actions: u64) -> f32 {
         match &self.apex_epsilon {
-            Some(apex) => apex.for_actor(index, self.actors + self.run.remote_actors),
+            Some(apex) => apex.for_actor(index, self.environments()),
             None => self.policy.epsilon(actions),
         }
     }
@@ -334,6 +360,10 @@ impl RunConfig {
     pub fn side(&self) -> usize {
         self.sim.grid().expect("validated").side()
     }
+}
+
+pub(crate) fn one_environment() -> u32 {
+    1
 }
 
 /// The memory this machine has available now (Linux's MemAvailable), where it says.

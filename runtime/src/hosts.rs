@@ -48,7 +48,8 @@ impl HostLink {
         let admission = Admission {
             run_id: run_id.into(),
             config: toml::to_string(config)?,
-            local_actors: config.actors,
+            local_actors: config.actors * config.envs_per_actor,
+            envs_per_actor: config.envs_per_actor,
             hosts_file: dir.hosts_file(),
         };
         Ok(Self {

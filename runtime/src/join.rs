@@ -143,7 +143,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         false,
         log,
     );
-    let last = placement.first_actor + args.actors;
+    let last = placement.first_actor + args.actors * supervisor.config().envs_per_actor;
     println!(
         "joined run {} at {} as host {host}: actors {}..{last} ({}), logs in {}",
         args.run_id,
@@ -152,9 +152,12 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         demand.describe(),
         dir.path().display()
     );
-    for index in placement.first_actor..last {
+    for first in supervisor
+        .config()
+        .first_environments(placement.first_actor, args.actors)
+    {
         supervisor.start(RoleId::Actor(ActorId {
-            index,
+            index: first,
             incarnation: placement.incarnation,
         }))?;
     }

@@ -94,8 +94,12 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     } else {
         format!("processes over shared memory: {}", demand.describe())
     };
+    let environments = match config.envs_per_actor {
+        1 => String::new(),
+        k => format!(" x {k} environments"),
+    };
     println!(
-        "run {run_id}: stage {}, {} actors ({how}), logs in {}",
+        "run {run_id}: stage {}, {} actors{environments} ({how}), logs in {}",
         config.stage,
         config.actors,
         dir.path().display()
@@ -127,6 +131,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let mut summary = Summary {
         run_id,
         actors: config.actors,
+        envs_per_actor: config.envs_per_actor,
         restarts: supervisor.restarts(),
         interrupted: signals.interrupted(),
         wall_s: start.elapsed().as_secs_f64(),
@@ -142,7 +147,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         hosts,
     };
     for fault in &mut summary.faults {
-        fault.lost_messages = lost_in_fault(&summary.buffer, &fault.role);
+        fault.lost_messages = lost_in_fault(&summary.buffer, &fault.role, config.envs_per_actor);
     }
     write_json(&dir.summary(), &summary)?;
     supervisor.log.json(LAUNCHER_SUMMARY, &summary)?;
@@ -247,18 +252,24 @@ fn report_or<T: serde::de::DeserializeOwned>(path: &Path, missing: impl Fn() -> 
     }
 }
 
-/// What the buffer counted lost to the fault of role `role`: the gaps in a crashed actor's
-/// stream, or what the buffer that took over from a crashed one found missing.
-fn lost_in_fault(buffer: &BufferReport, role: &str) -> Option<u64> {
-    let stream = buffer.streams.iter().find(|s| {
-        let id = ActorId {
-            index: s.actor,
-            incarnation: s.incarnation,
-        };
-        RoleId::Actor(id).name() == role
-    });
-    if let Some(stream) = stream {
-        return Some(stream.missing);
+/// What the buffer counted lost to the fault of role `role`: the gaps in the streams of a
+/// crashed actor process's environments (`envs_per_actor` of them, from a multiple of it),
+/// or what the buffer that took over from a crashed one found missing.
+fn lost_in_fault(buffer: &BufferReport, role: &str, envs_per_actor: u32) -> Option<u64> {
+    let streams: Vec<u64> = buffer
+        .streams
+        .iter()
+        .filter(|s| {
+            let process = ActorId {
+                index: s.actor - s.actor % envs_per_actor.max(1),
+                incarnation: s.incarnation,
+            };
+            RoleId::Actor(process).name() == role
+        })
+        .map(|s| s.missing)
+        .collect();
+    if !streams.is_empty() {
+        return Some(streams.iter().sum());
     }
     buffer
         .restart_losses
@@ -362,10 +373,10 @@ fn start_roles(
     }
     supervisor.start(RoleId::Learner(0))?;
     let incarnations = supervisor.next_incarnations()?;
-    for index in 0..actors {
+    for first in supervisor.config().first_environments(0, actors) {
         supervisor.start(RoleId::Actor(ActorId {
-            index,
-            incarnation: incarnations.get(&index).copied().unwrap_or(0),
+            index: first,
+            incarnation: incarnations.get(&first).copied().unwrap_or(0),
         }))?;
     }
     Ok(())

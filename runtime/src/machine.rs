@@ -18,22 +18,29 @@ const FILES_PER_PROCESS: u64 = 4;
 /// Threads of a role process beyond one per core (its main thread and its log writer).
 const THREADS_BEYOND_CORES: u64 = 2;
 
-/// An actor's resident memory: a base and its nets' activations, which grow with the
+/// An actor process's resident memory: a base and its nets' activations, which grow with the
 /// heightmap's pixels and the widest layer (measured: 85 MB at 112 x 112 and 102 MB at
 /// 224 x 224 with trunks of 8 and 16 channels; 143 MB with 32 and 64 at 224 x 224).
 const ACTOR_BASE_BYTES: u64 = 80 << 20;
 const ACTOR_BYTES_PER_PIXEL_CHANNEL: u64 = 28;
+/// Each environment of a process past its first: its scene, what it sees and its Q maps,
+/// which grow with the heightmap's pixels (measured at 112 x 112, peak resident memory of
+/// processes of 1, 2, 4 and 8 environments: 79, 86, 96 and 104 MB, 3.4 MB an environment
+/// by least squares).
+const ENV_BYTES_PER_PIXEL: u64 = 320;
 
 /// The processes of a run on one machine and what they ask of it.
 #[derive(Clone, Debug)]
 pub struct Demand {
     /// Actor processes.
     actors: u64,
+    /// Environments each actor process steps.
+    envs_per_actor: u64,
     /// Every process that opens the run's topics: the actors, and the launcher, buffer and
     /// learner (or a joined host's bridge).
     processes: u64,
     shm: ShmFootprint,
-    /// Bytes one actor holds resident.
+    /// Bytes one actor process holds resident, all its environments.
     actor_bytes: u64,
     /// Bytes the replay holds in this process (0 on a joined host).
     replay_bytes: u64,
@@ -69,19 +76,23 @@ impl Demand {
             weights,
         };
         let widest = config.net.trunk_widths.iter().copied().max().unwrap_or(1) as u64;
+        let pixels = (side * side) as u64;
+        let envs_per_actor = u64::from(config.envs_per_actor);
         Ok(Self {
             actors: u64::from(actors),
+            envs_per_actor,
             processes,
-            shm: ShmLimits::for_processes(processes as usize).footprint(&largest),
+            shm: limits(processes, envs_per_actor).footprint(&largest),
             actor_bytes: ACTOR_BASE_BYTES
-                + ACTOR_BYTES_PER_PIXEL_CHANNEL * (side * side) as u64 * widest,
+                + ACTOR_BYTES_PER_PIXEL_CHANNEL * pixels * widest
+                + ENV_BYTES_PER_PIXEL * pixels * envs_per_actor.saturating_sub(1),
             replay_bytes,
         })
     }
 
     /// The limits every process of the run opens its topics with.
     pub fn limits(&self) -> ShmLimits {
-        ShmLimits::for_processes(self.processes as usize)
+        limits(self.processes, self.envs_per_actor)
     }
 
     /// For the run's start line: its processes and their shared memory.
@@ -144,9 +155,12 @@ impl Demand {
             && memory > available
         {
             bail!(
-                "{} actors: about {} each ({} in all, with the replay's {}), more than the {} \
-                 this machine has available; {fewer}",
+                "{} actors of {} environments: about {} each ({} in all, with the replay's {}), \
+                 more than the {} this machine has available; {fewer}, or step the same \
+                 environments in fewer processes (a larger envs_per_actor): they share a \
+                 process's base",
                 self.actors,
+                self.envs_per_actor,
                 megabytes(self.actor_bytes),
                 megabytes(memory),
                 megabytes(self.replay_bytes),
@@ -168,6 +182,10 @@ impl Allowance {
             memory: crate::config::available_memory(),
         }
     }
+}
+
+fn limits(processes: u64, envs_per_actor: u64) -> ShmLimits {
+    ShmLimits::for_processes(processes as usize).with_envs_per_process(envs_per_actor as usize)
 }
 
 fn megabytes(bytes: u64) -> String {
@@ -243,13 +261,16 @@ fn threads_left() -> Option<u64> {
 mod tests {
     use super::*;
 
-    fn stage1(actors: u32) -> Demand {
-        let config = RunConfig::load(std::path::Path::new(concat!(
+    fn stage1_config() -> RunConfig {
+        RunConfig::load(std::path::Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../configs/stage1.toml"
         )))
-        .unwrap();
-        Demand::new(&config, actors, 3, 0).unwrap()
+        .unwrap()
+    }
+
+    fn stage1(actors: u32) -> Demand {
+        Demand::new(&stage1_config(), actors, 3, 0).unwrap()
     }
 
     fn roomy() -> Allowance {
@@ -300,6 +321,20 @@ mod tests {
         assert!(
             memory.contains("64 actors") && memory.contains("--actors"),
             "{memory}"
+        );
+        assert!(memory.contains("envs_per_actor"), "{memory}");
+    }
+
+    #[test]
+    fn environments_sharing_a_process_ask_less_memory_than_processes_of_their_own() {
+        let mut config = stage1_config();
+        let alone = Demand::new(&config, 1, 3, 0).unwrap().actor_bytes;
+        config.envs_per_actor = 8;
+        let shared = Demand::new(&config, 1, 3, 0).unwrap().actor_bytes;
+        assert!(shared > alone, "{shared} {alone}");
+        assert!(
+            shared < 2 * alone,
+            "8 environments in one process: {shared} {alone}"
         );
     }
 }

@@ -143,7 +143,11 @@ impl Progress {
 #[derive(Debug, Serialize, Deserialize)]
 pub struct Summary {
     pub run_id: String,
+    /// Actor processes on this host.
     pub actors: u32,
+    /// Environments each actor process stepped.
+    #[serde(default = "crate::config::one_environment")]
+    pub envs_per_actor: u32,
     /// Roles started again after a failure: actors, the buffer and the learner.
     pub restarts: u32,
     pub interrupted: bool,
@@ -152,7 +156,7 @@ pub struct Summary {
     /// counts of its last status report (the buffer's then has no per-stream counts).
     pub buffer: BufferReport,
     pub learner: LearnerReport,
-    /// The reports of actors that stopped cleanly (a killed one writes none; its steps are
+    /// The reports of actors' environments that stopped cleanly (a killed one writes none; its steps are
     /// accounted for by the buffer's per-incarnation counts).
     pub actors_reports: Vec<ActorReport>,
     /// Every role that failed, in order: restarted (the run went on) or not (the run ended).

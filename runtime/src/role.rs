@@ -122,8 +122,17 @@ pub fn run_role(
             crate::learner::run(transport, config, dir, start, &log, lifeline)
                 .and_then(|r| write_json(&report, &r))
         }
-        RoleId::Actor(actor) => crate::actor::run(transport, config, actor, &log, lifeline)
-            .and_then(|r| write_json(&report, &r)),
+        // One report per environment, each under the name its own process would have.
+        RoleId::Actor(first) => crate::actor::run(transport, config, first, &log, lifeline)
+            .and_then(|reports| {
+                reports.iter().try_for_each(|r| {
+                    let id = RoleId::Actor(ActorId {
+                        index: r.actor,
+                        incarnation: r.incarnation,
+                    });
+                    write_json(&dir.report(&id.name()), r)
+                })
+            }),
     };
     match &result {
         Ok(()) => log.log_line(LogLevel::Info, &format!("{name} stopped"))?,
@@ -213,7 +222,8 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
     let dir = RunDir::new(&args.run_dir);
     let config = RunConfig::load(&dir.config())?;
     let id = args.id();
-    let limits = wire::ShmLimits::for_processes(args.shm_processes);
+    let limits = wire::ShmLimits::for_processes(args.shm_processes)
+        .with_envs_per_process(config.envs_per_actor as usize);
     let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name(), limits)?;
     let from = StartFrom {
         resume: args.resume,

@@ -1,6 +1,7 @@
 //! How long a stretch of a role's work took by the wall clock, and what it cost in CPU time:
 //! the second leaves out the time the role waited (on the rate limiter, or for a core other
-//! processes held), so it gives a run's cost per action or per update.
+//! processes held), so it gives a run's cost per action or per update; and the memory a
+//! process holds ([`status_mb`]).
 
 use std::time::Instant;
 
@@ -40,6 +41,20 @@ fn process_cpu_s() -> f64 {
     // Unix this runs on (POSIX), and on failure `now` stays zero.
     unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut now) };
     now.tv_sec as f64 + now.tv_nsec as f64 * 1e-9
+}
+
+/// A size line ("VmRSS:", "VmHWM:") of `/proc/<process>/status` in MB (`process`: a pid or
+/// `self`), where there is one.
+pub fn status_mb(process: &str, field: &str) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{process}/status")).ok()?;
+    let line = status.lines().find(|line| line.starts_with(field))?;
+    let kb: f64 = line[field.len()..]
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb / 1024.0)
 }
 
 #[cfg(test)]

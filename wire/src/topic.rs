@@ -90,6 +90,17 @@ impl Topic {
         }
     }
 
+    /// [`Topic::buffer`] for a publisher that sends for `envs` environments at once (an actor
+    /// process of several): the steps topic holds as many of each environment's, so that
+    /// one action of all of them (a step and an episode end each) waits in the buffer
+    /// rather than in a publisher blocked behind the others.
+    pub fn buffer_for(self, envs: usize) -> usize {
+        match self {
+            Topic::Steps => self.buffer() * envs.max(1),
+            _ => self.buffer(),
+        }
+    }
+
     /// Messages kept for subscribers that join later: the newest weights, and the newest
     /// order (an actor restarted after a stop still stops).
     pub fn history(self) -> usize {

@@ -20,7 +20,7 @@ use sim::Primitive;
 
 use policy::QMaps;
 
-use crate::acting::every_rotation;
+use crate::acting::{every_rotation, q_maps, try_map};
 use crate::equivariant;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
@@ -105,9 +105,23 @@ impl Inference {
         input: &NetInput,
         geometry: &Geometry,
     ) -> Result<[QMaps; N], QNetError> {
-        every_rotation(geometry, |rotations| {
-            self.rotations_of(primitives, input, rotations, geometry)
-        })
+        let mut maps = self.all_rotations_of_each(primitives, &[input], geometry)?;
+        Ok(maps.pop().expect("one input, one set of maps"))
+    }
+
+    /// [`Inference::all_rotations_of`] for each of `inputs`, as one batch: the passes of
+    /// every input's rotations share the cores, so that several environments' decisions
+    /// keep them busy where one alone has fewer passes than cores or ends unevenly.
+    pub fn all_rotations_of_each<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        inputs: &[&NetInput],
+        geometry: &Geometry,
+    ) -> Result<Vec<[QMaps; N]>, QNetError> {
+        self.rotations_of_each(primitives, inputs, &every_rotation(), geometry)?
+            .into_iter()
+            .map(|values| try_map(values, |values| q_maps(geometry, values)))
+            .collect()
     }
 
     /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
@@ -118,21 +132,24 @@ impl Inference {
         rotations: &[u8],
         geometry: &Geometry,
     ) -> Result<Vec<f32>, QNetError> {
-        let [values] = self.rotations_of([primitive], input, rotations, geometry)?;
+        let mut values = self.rotations_of_each([primitive], &[input], rotations, geometry)?;
+        let [values] = values.pop().expect("one input, one set of maps");
         Ok(values)
     }
 
-    /// [`Inference::rotations`] of each of `primitives`, every input rotation they need
-    /// computed once and run through each of their nets.
-    fn rotations_of<const N: usize>(
+    /// [`Inference::rotations`] of each of `primitives` for each of `inputs`: every input
+    /// rotation they need computed once and run through each of their nets.
+    fn rotations_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
-        input: &NetInput,
+        inputs: &[&NetInput],
         rotations: &[u8],
         geometry: &Geometry,
-    ) -> Result<[Vec<f32>; N], QNetError> {
-        for &k in rotations {
-            geometry.check(input, k)?;
+    ) -> Result<Vec<[Vec<f32>; N]>, QNetError> {
+        for input in inputs {
+            for &k in rotations {
+                geometry.check(input, k)?;
+            }
         }
         let nets = primitives.map(|primitive| self.net(primitive));
         // The input rotations the rotations asked for need, each run once through every net
@@ -145,10 +162,12 @@ impl Inference {
             .collect();
         turns.sort_unstable();
         turns.dedup();
-        // `lows[t][i]`: net `i`'s low-resolution maps of turn `turns[t]`.
-        let lows: Vec<[Vec<f32>; N]> = turns
-            .par_iter()
-            .map(|&turn| {
+        // `lows[i * turns.len() + t][j]`: net `j`'s low-resolution maps of input `i` at turn
+        // `turns[t]`.
+        let lows: Vec<[Vec<f32>; N]> = (0..inputs.len() * turns.len())
+            .into_par_iter()
+            .map(|pass| {
+                let (input, turn) = (inputs[pass / turns.len()], turns[pass % turns.len()]);
                 WORKSPACE.with_borrow_mut(|ws| {
                     ws.planes.iter_mut().for_each(Vec::clear);
                     let [colour, depth, mask] = &mut ws.planes;
@@ -164,22 +183,33 @@ impl Inference {
                 })
             })
             .collect();
-        let side = geometry.side();
+        let area = geometry.side() * geometry.side();
         let low_area = geometry.low_side() * geometry.low_side();
-        Ok(std::array::from_fn(|i| {
-            let mut values = vec![0.0; rotations.len() * side * side];
-            values
-                .par_chunks_mut(side * side)
-                .zip(rotations)
-                .for_each(|(map, &k)| {
-                    let (turn, channel) = turn_and_channel(nets[i], k);
-                    let t = turns.binary_search(&turn).expect("every turn was run");
-                    let low = &lows[t][i][channel * low_area..(channel + 1) * low_area];
-                    WORKSPACE
-                        .with_borrow_mut(|ws| rotate_back(low, turn, geometry, &mut ws.back, map));
-                });
-            values
-        }))
+        let mut values: Vec<[Vec<f32>; N]> = (0..inputs.len())
+            .map(|_| std::array::from_fn(|_| vec![0.0; rotations.len() * area]))
+            .collect();
+        values
+            .par_iter_mut()
+            .enumerate()
+            .flat_map(|(i, maps)| {
+                maps.par_iter_mut()
+                    .enumerate()
+                    .map(move |(j, maps)| (i, j, maps))
+            })
+            .for_each(|(i, j, maps)| {
+                maps.par_chunks_mut(area)
+                    .zip(rotations)
+                    .for_each(|(map, &k)| {
+                        let (turn, channel) = turn_and_channel(nets[j], k);
+                        let t = turns.binary_search(&turn).expect("every turn was run");
+                        let low = &lows[i * turns.len() + t][j];
+                        let low = &low[channel * low_area..(channel + 1) * low_area];
+                        WORKSPACE.with_borrow_mut(|ws| {
+                            rotate_back(low, turn, geometry, &mut ws.back, map)
+                        });
+                    });
+            });
+        Ok(values)
     }
 
     /// The low-resolution Q maps (`n x group x low_side^2`: one a quarter turn of the

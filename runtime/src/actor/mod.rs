@@ -9,13 +9,14 @@
 mod pictures;
 mod ship;
 
-use agent::{Agent, Choice};
+use agent::{Agent, Choice, Situation};
 use anyhow::{Context, Result};
 use experience::Transition;
 use mcaplog::RunLog;
 use policy::{Decision, QMaps, trial_grasps};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::measure::detect_change;
 use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
@@ -23,10 +24,10 @@ use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weigh
 
 use crate::backend::open_device;
 use crate::config::RunConfig;
-use crate::stopwatch::Stopwatch;
+use crate::stopwatch::{Stopwatch, status_mb};
 use crate::{Lifeline, stop_requested};
 use pictures::log_pictures;
-use ship::{Shipper, Unlabelled};
+use ship::{Shipper, Stream, Unlabelled};
 
 /// Which actor this is: its index in the run and how many times that index was started.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -74,68 +75,118 @@ pub struct ActorReport {
     pub weights_version: u64,
     /// Seconds from the first weights received to the stop: the time `actions` took.
     pub acting_s: f64,
-    /// CPU seconds the actor's process used over `acting_s`, all its threads (none for an
-    /// actor in a thread of the launcher, whose process the other roles share).
+    /// CPU seconds the actor's process used over `acting_s`, all its threads, split evenly
+    /// among its environments (none for an actor in a thread of the launcher, whose process
+    /// the other roles share).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cpu_s: Option<f64>,
+    /// The peak resident memory of the actor's process in MB, split evenly among its
+    /// environments (none in a thread of the launcher).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_rss_mb: Option<f64>,
 }
 
-/// Runs episodes until the launcher says stop (or the launcher is gone); returns what it did.
+/// Runs its environments' episodes until the launcher says stop (or the launcher is gone);
+/// returns what each did. `first`: the process's first environment (the others follow it,
+/// `config.envs_per_actor` in all).
 pub fn run(
     transport: &dyn Transport,
     config: &RunConfig,
-    id: ActorId,
+    first: ActorId,
     log: &RunLog,
     lifeline: &Lifeline,
-) -> Result<ActorReport> {
+) -> Result<Vec<ActorReport>> {
     let mut control = Inbox::open(transport, Topic::Control)?;
     let mut status = Outbox::open(transport, Topic::Status)?;
-    let origin = Origin {
-        actor: id.index,
-        incarnation: id.incarnation,
-        seq: 0,
-    };
-    let steps = Outbox::open(transport, Topic::Steps)?;
-    let mut shipper = Shipper::new(log, steps, origin, config);
+    let mut shipper = Shipper::new(log, Outbox::open(transport, Topic::Steps)?, config);
     let mut policy = Policy::new(transport, config, log)?;
-    let mut report = ActorReport {
-        actor: id.index,
-        incarnation: id.incarnation,
-        ..ActorReport::default()
-    };
+    let mut envs = (0..config.envs_per_actor)
+        .map(|j| {
+            let id = ActorId {
+                index: first.index + j,
+                ..first
+            };
+            Environment::new(config, id, log)
+        })
+        .collect::<Result<Vec<_>>>()?;
     // Nothing to act with until the learner's first weights arrive.
     if !policy.refresh(true, lifeline, &mut control)? {
-        return Ok(report);
+        return Ok(envs.into_iter().map(|env| env.report).collect());
     }
     let acting = Stopwatch::start();
-    let mut play = Play::new(config, id, log)?;
+    // Stops between actions, not only between episodes: a push chain can be long.
     while !lifeline.lost() && !stop_requested(&mut control, Role::Actor)? {
         policy.refresh(false, lifeline, &mut control)?;
-        shipper.weights_version = policy.version;
-        let Some((obs, goal)) = play.episode_start(&mut shipper)? else {
-            continue;
-        };
-        let ended = play.episode(obs, goal, &policy, &mut shipper, &mut report, &mut || {
-            Ok(lifeline.lost() || stop_requested(&mut control, Role::Actor)?)
-        })?;
-        if !ended {
-            break;
+        for env in tick(&mut envs, &policy, &mut shipper)? {
+            let env = &envs[env];
+            status.send(&Message::Status(Status::Actor {
+                actor: env.id.index,
+                incarnation: env.id.incarnation,
+                episodes: env.report.episodes,
+                steps_sent: env.stream.steps_sent,
+                weights_version: policy.version,
+            }))?;
         }
-        status.send(&Message::Status(Status::Actor {
-            actor: id.index,
-            incarnation: id.incarnation,
-            episodes: report.episodes,
-            steps_sent: shipper.steps_sent,
-            weights_version: policy.version,
-        }))?;
     }
     // A step still waiting for its next state is not sent: its label would be a guess. Its
     // episode's earlier steps reach the buffer, which keeps or flushes them.
-    report.steps_sent = shipper.steps_sent;
-    report.weights_version = policy.version;
-    report.acting_s = acting.wall_s();
-    report.cpu_s = lifeline.own_process().then(|| acting.cpu_s());
-    Ok(report)
+    let (acting_s, cpu_s) = (acting.wall_s(), acting.cpu_s());
+    let own = lifeline.own_process();
+    let peak_rss_mb = own.then(|| status_mb("self", "VmHWM:")).flatten();
+    let share = f64::from(config.envs_per_actor);
+    Ok(envs
+        .into_iter()
+        .map(|env| ActorReport {
+            steps_sent: env.stream.steps_sent,
+            weights_version: policy.version,
+            acting_s,
+            cpu_s: own.then_some(cpu_s / share),
+            peak_rss_mb: peak_rss_mb.map(|mb| mb / share),
+            ..env.report
+        })
+        .collect())
+}
+
+/// One action in every environment: those between episodes start one, those in one decide
+/// together (one batch of Q maps), then all act at once, their scenes spread over the
+/// cores, and what they completed is shipped. Returns the environments whose episode ended.
+fn tick(
+    envs: &mut [Environment<'_>],
+    policy: &Policy,
+    shipper: &mut Shipper<'_>,
+) -> Result<Vec<usize>> {
+    for env in envs.iter_mut() {
+        if let Some(chain_end) = env.episode_start()? {
+            shipper.ship(&mut env.stream, chain_end, None)?;
+        }
+    }
+    let situations = envs.iter_mut().filter_map(Environment::situation).collect();
+    let mut choices = policy.agent.decide_each(situations)?.into_iter();
+    let work: Vec<_> = envs
+        .iter_mut()
+        .map(|env| {
+            let choice = env.episode.is_some().then(|| choices.next());
+            (env, choice.flatten())
+        })
+        .collect();
+    let version = policy.version;
+    let completed: Vec<Option<Vec<Completed>>> = work
+        .into_par_iter()
+        .map(|(env, choice)| choice.map(|c| env.act(c, version)).transpose())
+        .collect::<Result<_>>()?;
+    let mut ended = Vec::new();
+    for (i, (env, completed)) in envs.iter_mut().zip(completed).enumerate() {
+        let Some(completed) = completed else {
+            continue;
+        };
+        for (step, next) in completed {
+            shipper.ship(&mut env.stream, step, next.as_ref())?;
+        }
+        if env.episode.is_none() {
+            ended.push(i);
+        }
+    }
+    Ok(ended)
 }
 
 /// The actor's agent and where new weights come from.
@@ -189,9 +240,12 @@ impl Policy {
     }
 }
 
-/// The actor's world between episodes: the scene it plays on, its exploration, and the step
-/// still waiting for the next decision.
-struct Play<'a> {
+/// A step completed by the decision after it (`None`: its scene ended), to be shipped.
+type Completed = (Unlabelled, Option<Decision>);
+
+/// One environment of an actor process: the scene it plays on, its exploration, its
+/// episode under way, the step still waiting for the next decision, and its stream.
+struct Environment<'a> {
     config: &'a RunConfig,
     id: ActorId,
     log: &'a RunLog,
@@ -199,12 +253,22 @@ struct Play<'a> {
     scene_seed: u64,
     tabletop: Tabletop,
     camera: Camera,
+    episode: Option<Episode>,
     unlabelled: Option<Unlabelled>,
     /// Grasps in a row that held nothing: a scene stuck for too long is replaced.
     failures_in_a_row: usize,
+    stream: Stream,
+    report: ActorReport,
 }
 
-impl<'a> Play<'a> {
+/// An episode under way: what the environment sees now, the goal, and its actions so far.
+struct Episode {
+    obs: Heightmaps,
+    goal: ObjectId,
+    step: u32,
+}
+
+impl<'a> Environment<'a> {
     fn new(config: &'a RunConfig, id: ActorId, log: &'a RunLog) -> Result<Self> {
         let seed = id.seed(config.seed);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -217,8 +281,19 @@ impl<'a> Play<'a> {
             scene_seed: seed,
             camera: Camera::new(tabletop.grid()),
             tabletop,
+            episode: None,
             unlabelled: None,
             failures_in_a_row: 0,
+            stream: Stream::new(Origin {
+                actor: id.index,
+                incarnation: id.incarnation,
+                seq: 0,
+            }),
+            report: ActorReport {
+                actor: id.index,
+                incarnation: id.incarnation,
+                ..ActorReport::default()
+            },
         })
     }
 
@@ -227,108 +302,114 @@ impl<'a> Play<'a> {
         Ok(Tabletop::random_with_rows(&config.sim, config.objects, rows, seed)?.0)
     }
 
-    /// The observation and goal an episode starts from: a new scene when this one is
-    /// cleared or stuck (a waiting step then ends its chain), a visible object at random.
-    fn episode_start(&mut self, shipper: &mut Shipper) -> Result<Option<(Heightmaps, ObjectId)>> {
+    /// Between episodes, starts one: on a new scene when this one is cleared or stuck, for
+    /// a visible object at random (none while nothing is visible: it tries again next
+    /// time). A new scene ends the chain of the step waiting: returned, to ship as it is.
+    fn episode_start(&mut self) -> Result<Option<Unlabelled>> {
+        if self.episode.is_some() {
+            return Ok(None);
+        }
+        let mut chain_end = None;
         let mut obs = self.camera.render(&self.tabletop);
         if obs.visible_ids().is_empty()
             || self.failures_in_a_row >= self.config.max_failures_per_scene
         {
-            if let Some(p) = self.unlabelled.take() {
-                shipper.ship(p, None)?;
-            }
+            chain_end = self.unlabelled.take();
             self.scene_seed = self.scene_seed.wrapping_add(1);
             self.tabletop = Self::new_scene(self.config, self.scene_seed, &mut self.rng)?;
             obs = self.camera.render(&self.tabletop);
             self.failures_in_a_row = 0;
         }
         let visible = obs.visible_ids();
-        let goal = visible.get(self.rng.random_range(0..visible.len().max(1)));
-        Ok(goal.map(|&goal| (obs, goal)))
+        if let Some(&goal) = visible.get(self.rng.random_range(0..visible.len().max(1))) {
+            self.episode = Some(Episode { obs, goal, step: 0 });
+        }
+        Ok(chain_end)
     }
 
-    /// Pushes until a grasp ends the episode: true then, false when told to stop between
-    /// actions (`stop` says whether to).
-    fn episode(
-        &mut self,
-        mut obs: Heightmaps,
-        goal: ObjectId,
-        policy: &Policy,
-        shipper: &mut Shipper,
-        report: &mut ActorReport,
-        stop: &mut dyn FnMut() -> Result<bool>,
-    ) -> Result<bool> {
-        let episode = self.id.episode(report.episodes);
-        for step in 0u32.. {
-            let epsilon = self.config.epsilon(self.id.index, report.actions);
-            let choice = policy
-                .agent
-                .decide(&obs, goal, step as usize, epsilon, &mut self.rng)?;
-            let pictures_ns = self.pictures(report.episodes, &obs, &choice)?;
-            let Choice {
-                decision, grasp, ..
-            } = choice;
-            if let Some(p) = self.unlabelled.take() {
-                shipper.ship(p, Some(&decision))?;
-            }
-            if decision.action.primitive == Primitive::Grasp && self.config.grasp_trials > 0 {
-                self.trials(&obs, goal, &grasp, &decision, shipper, report)?;
-            }
-            let outcome = self.tabletop.act(&decision.action, &obs)?;
-            report.actions += 1;
-            let transition = Transition {
-                episode,
-                step,
-                goal,
-                obs,
-                action: decision.action,
-                reward: 0.0,
-                grasped: outcome.grasped,
-                next_value: None,
-                next: None,
-            };
-            obs = self.camera.render(&self.tabletop);
-            if decision.action.primitive == Primitive::Push {
-                self.unlabelled = Some(Unlabelled {
-                    push_changed: Some(detect_change(&transition.obs, &obs, goal)),
-                    transition,
-                    decision,
-                    ends: None,
-                    scene_seed: self.scene_seed,
-                    pictures_ns,
-                });
-                // Stop between actions, not only between episodes: a push chain can be long.
-                if stop()? {
-                    return Ok(false);
-                }
-                continue;
-            }
-            self.failures_in_a_row = if outcome.grasped.is_some() {
-                0
-            } else {
-                self.failures_in_a_row + 1
-            };
-            let origin = shipper.origin;
-            let grasp = Unlabelled::grasp(
+    /// What the agent decides on in this environment, while an episode is under way.
+    fn situation(&mut self) -> Option<Situation<'_>> {
+        let episode = self.episode.as_ref()?;
+        Some(Situation {
+            obs: &episode.obs,
+            goal: episode.goal,
+            pushes_so_far: episode.step as usize,
+            epsilon: self.config.epsilon(self.id.index, self.report.actions),
+            rng: &mut self.rng,
+        })
+    }
+
+    /// Acts on `choice` (made with weights `weights_version`): a push goes on with the
+    /// episode, a grasp ends it. Returns the steps the choice completed.
+    fn act(&mut self, choice: Choice, weights_version: u64) -> Result<Vec<Completed>> {
+        let Episode { obs, goal, step } = self.episode.take().expect("acting in an episode");
+        let pictures_ns = self.pictures(&obs, &choice)?;
+        let Choice {
+            decision, grasp, ..
+        } = choice;
+        let mut completed: Vec<Completed> = self
+            .unlabelled
+            .take()
+            .map(|p| (p, Some(decision)))
+            .into_iter()
+            .collect();
+        if decision.action.primitive == Primitive::Grasp && self.config.grasp_trials > 0 {
+            completed.extend(self.trials(&obs, goal, &grasp, &decision, weights_version)?);
+        }
+        let outcome = self.tabletop.act(&decision.action, &obs)?;
+        self.report.actions += 1;
+        let transition = Transition {
+            episode: self.id.episode(self.report.episodes),
+            step,
+            goal,
+            obs,
+            action: decision.action,
+            reward: 0.0,
+            grasped: outcome.grasped,
+            next_value: None,
+            next: None,
+        };
+        if decision.action.primitive == Primitive::Push {
+            let obs = self.camera.render(&self.tabletop);
+            self.unlabelled = Some(Unlabelled {
+                push_changed: Some(detect_change(&transition.obs, &obs, goal)),
                 transition,
                 decision,
-                origin,
-                false,
-                self.scene_seed,
+                ends: None,
+                scene_seed: self.scene_seed,
                 pictures_ns,
-            );
-            report.episodes += 1;
-            report.goal_grasps += u64::from(grasp.transition.reward > 0.0);
-            self.unlabelled = Some(grasp);
-            break;
+                weights_version,
+            });
+            self.episode = Some(Episode {
+                obs,
+                goal,
+                step: step + 1,
+            });
+            return Ok(completed);
         }
-        Ok(true)
+        self.failures_in_a_row = if outcome.grasped.is_some() {
+            0
+        } else {
+            self.failures_in_a_row + 1
+        };
+        let grasp = Unlabelled::grasp(
+            transition,
+            decision,
+            false,
+            self.scene_seed,
+            pictures_ns,
+            weights_version,
+        );
+        self.report.episodes += 1;
+        self.report.goal_grasps += u64::from(grasp.transition.reward > 0.0);
+        self.unlabelled = Some(grasp);
+        Ok(completed)
     }
 
     /// The pictures of this step, every `image_every` episodes: when they were logged.
-    fn pictures(&self, episodes: u64, obs: &Heightmaps, choice: &Choice) -> Result<Option<u64>> {
+    fn pictures(&self, obs: &Heightmaps, choice: &Choice) -> Result<Option<u64>> {
         let every = self.config.logging.image_every;
-        (every > 0 && episodes.is_multiple_of(every))
+        (every > 0 && self.report.episodes.is_multiple_of(every))
             .then(|| {
                 log_pictures(
                     self.log,
@@ -342,16 +423,15 @@ impl<'a> Play<'a> {
     }
 
     /// Grasps tried on copies of the scene beside the executed one (`grasp_trials`), each
-    /// shipped at once as an episode of its own.
+    /// an episode of its own, completed at once.
     fn trials(
         &mut self,
         obs: &Heightmaps,
         goal: ObjectId,
         grasp: &QMaps,
         decision: &Decision,
-        shipper: &mut Shipper,
-        report: &mut ActorReport,
-    ) -> Result<()> {
+        weights_version: u64,
+    ) -> Result<Vec<Completed>> {
         let trials = trial_grasps(
             obs,
             goal,
@@ -361,10 +441,11 @@ impl<'a> Play<'a> {
             &self.config.policy,
             &mut self.rng,
         )?;
+        let mut completed = Vec::with_capacity(trials.len());
         for trial in trials {
             let outcome = self.tabletop.replica().act(&trial.action, obs)?;
             let transition = Transition {
-                episode: self.id.trial(report.trials),
+                episode: self.id.trial(self.report.trials),
                 step: 0,
                 goal,
                 obs: obs.clone(),
@@ -374,19 +455,19 @@ impl<'a> Play<'a> {
                 next_value: None,
                 next: None,
             };
-            report.trials += 1;
+            self.report.trials += 1;
             let unlabelled = Unlabelled::grasp(
                 transition,
                 trial,
-                shipper.origin,
                 true,
                 self.scene_seed,
                 None,
+                weights_version,
             );
             // A successful trial bootstraps on the executed grasp's view of this scene (its
             // goal grasp Q), standing in for the scene it would leave.
-            shipper.ship(unlabelled, Some(decision))?;
+            completed.push((unlabelled, Some(*decision)));
         }
-        Ok(())
+        Ok(completed)
     }
 }

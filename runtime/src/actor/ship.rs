@@ -1,6 +1,7 @@
 //! Steps on their way to the buffer: a step waits ([`Unlabelled`]) until the next decision in
 //! its scene gives its label's next value (and a push's reward the goal's grasp Q after it),
-//! then travels with its actor's initial priority ([`Shipper`]), logged as it goes.
+//! then travels with its actor's initial priority on its environment's [`Stream`]
+//! ([`Shipper`]), logged as it goes.
 
 use anyhow::Result;
 use experience::Transition;
@@ -25,16 +26,24 @@ pub(super) struct Unlabelled {
     pub(super) scene_seed: u64,
     /// When the pictures of this step were logged, if they were.
     pub(super) pictures_ns: Option<u64>,
+    /// The weights its decision was made with.
+    pub(super) weights_version: u64,
 }
 
-pub(super) struct Shipper<'a> {
-    pub(super) log: &'a RunLog,
-    pub(super) outbox: Outbox,
+/// One environment's messages to the buffer: the origin of the next (its sequence counts
+/// every message, so the buffer can prove nothing was lost) and the steps it sent.
+pub(super) struct Stream {
     pub(super) origin: Origin,
-    pub(super) gamma: f32,
-    pub(super) push_reward: PushReward,
-    pub(super) weights_version: u64,
     pub(super) steps_sent: u64,
+}
+
+/// What every environment of the process ships through: the one publisher of the steps
+/// topic, the log and the labels' settings.
+pub(super) struct Shipper<'a> {
+    log: &'a RunLog,
+    outbox: Outbox,
+    gamma: f32,
+    push_reward: PushReward,
 }
 
 impl Unlabelled {
@@ -42,16 +51,20 @@ impl Unlabelled {
     pub(super) fn grasp(
         mut transition: Transition,
         decision: Decision,
-        origin: Origin,
         trial: bool,
         scene_seed: u64,
         pictures_ns: Option<u64>,
+        weights_version: u64,
     ) -> Self {
         transition.reward = grasp_reward(transition.grasped, transition.goal);
         Self {
             ends: Some(EpisodeEnd {
                 // Stamped when sent.
-                origin,
+                origin: Origin {
+                    actor: 0,
+                    incarnation: 0,
+                    seq: 0,
+                },
                 episode: transition.episode,
                 goal: transition.goal,
                 grasped: transition.grasped,
@@ -63,32 +76,45 @@ impl Unlabelled {
             push_changed: None,
             scene_seed,
             pictures_ns,
+            weights_version,
         }
     }
 }
 
-impl<'a> Shipper<'a> {
-    pub(super) fn new(log: &'a RunLog, outbox: Outbox, origin: Origin, config: &RunConfig) -> Self {
+impl Stream {
+    pub(super) fn new(origin: Origin) -> Self {
         Self {
-            log,
-            outbox,
             origin,
-            gamma: config.learning.gamma,
-            push_reward: config.push_reward,
-            weights_version: 0,
             steps_sent: 0,
         }
     }
 
-    pub(super) fn next_origin(&mut self) -> Origin {
+    fn next_origin(&mut self) -> Origin {
         let origin = self.origin;
         self.origin.seq += 1;
         origin
     }
+}
+
+impl<'a> Shipper<'a> {
+    pub(super) fn new(log: &'a RunLog, outbox: Outbox, config: &RunConfig) -> Self {
+        Self {
+            log,
+            outbox,
+            gamma: config.learning.gamma,
+            push_reward: config.push_reward,
+        }
+    }
 
     /// Completes a pending step with the next state's values and sends it (and the end of
-    /// its episode). `next`: the next decision in the same scene, `None` if the scene ended.
-    pub(super) fn ship(&mut self, mut pending: Unlabelled, next: Option<&Decision>) -> Result<()> {
+    /// its episode) on `stream`. `next`: the next decision in the same scene, `None` if the
+    /// scene ended.
+    pub(super) fn ship(
+        &mut self,
+        stream: &mut Stream,
+        mut pending: Unlabelled,
+        next: Option<&Decision>,
+    ) -> Result<()> {
         let t = &mut pending.transition;
         let (label, next_value) = match t.action.primitive {
             Primitive::Grasp => {
@@ -116,11 +142,11 @@ impl<'a> Shipper<'a> {
         t.next_value = next_value;
         let d = &pending.decision;
         let step = Step {
-            origin: self.next_origin(),
+            origin: stream.next_origin(),
             priority: f64::from((label - d.predicted_q).abs()),
             predicted_q: d.predicted_q,
             explored: d.explored,
-            weights_version: self.weights_version,
+            weights_version: pending.weights_version,
             transition: pending.transition,
         };
         let t = &step.transition;
@@ -142,14 +168,14 @@ impl<'a> Shipper<'a> {
             reward: t.reward,
             grasped: t.grasped,
             priority: step.priority,
-            weights_version: self.weights_version,
+            weights_version: step.weights_version,
             pictures_ns: pending.pictures_ns,
         };
         self.outbox.send(&Message::Step(step))?;
-        self.steps_sent += 1;
+        stream.steps_sent += 1;
         self.log.json(ACTOR_STEP, &record)?;
         if let Some(mut end) = pending.ends {
-            end.origin = self.next_origin();
+            end.origin = stream.next_origin();
             self.outbox.send(&Message::EpisodeEnd(end.clone()))?;
             if end.trial {
                 return Ok(());

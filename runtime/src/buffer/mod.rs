@@ -62,7 +62,7 @@ pub fn run(
     }
     // The first report says the buffer listens: the launcher starts actors only then.
     ports.status.send(&Message::Status(role.status()))?;
-    let mut inflow = Inflow::new(config.actors + config.run.remote_actors);
+    let mut inflow = Inflow::new(config);
     let mut last_status = Instant::now();
     let snapshot_every = (config.buffer.snapshot_every_s > 0.0)
         .then(|| Duration::from_secs_f64(config.buffer.snapshot_every_s));
@@ -128,7 +128,7 @@ impl Ports {
 /// iceoryx2 hands out the first publisher's messages first, so taking one at a time would
 /// let in only one actor's steps whenever the learner sets the pace.
 struct Inflow {
-    /// A round: what every actor can have waiting in the transport, and one more.
+    /// A round: what every actor process can have waiting, and one more.
     round: usize,
     staged: VecDeque<Message>,
     /// The launcher told the actors to stop: let everything in.
@@ -136,8 +136,16 @@ struct Inflow {
 }
 
 impl Inflow {
-    fn new(actors: u32) -> Self {
-        let round = (Topic::Steps.buffer() + 1) * actors.max(1) as usize;
+    /// For the run's actor processes (here and on joined hosts).
+    fn new(config: &RunConfig) -> Self {
+        let k = config.envs_per_actor as usize;
+        // What a process can have waiting: its buffer in the transport, and one action of
+        // all its environments (a step and an episode end each, and each trial's) that it
+        // sends as soon as there is room, while a round is read. With less, the processes
+        // read first fill the round again and the last are never read.
+        let waiting = Topic::Steps.buffer_for(k) + 2 * k * (1 + config.grasp_trials);
+        let processes = (config.actors + config.run.remote_actors).max(1) as usize;
+        let round = (waiting + 1) * processes;
         Self {
             round,
             staged: VecDeque::with_capacity(round),

@@ -31,6 +31,9 @@ const LOANS: usize = 2;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShmLimits {
     processes: usize,
+    /// Environments an actor process steps, whose messages its one publisher of steps
+    /// sends together.
+    envs_per_process: usize,
 }
 
 /// The largest message of the topics whose messages can outgrow the first slice a
@@ -66,11 +69,25 @@ impl ShmLimits {
     pub const fn for_processes(processes: usize) -> Self {
         Self {
             processes: if processes == 0 { 1 } else { processes },
+            envs_per_process: 1,
+        }
+    }
+
+    /// These limits for actor processes of `envs` environments each (at least one).
+    pub const fn with_envs_per_process(self, envs: usize) -> Self {
+        Self {
+            envs_per_process: if envs == 0 { 1 } else { envs },
+            ..self
         }
     }
 
     pub fn processes(self) -> usize {
         self.processes
+    }
+
+    /// Unread messages a subscriber of `topic` holds per publisher.
+    pub(super) fn buffer(self, topic: Topic) -> usize {
+        topic.buffer_for(self.envs_per_process)
     }
 
     pub(super) fn nodes(self) -> usize {
@@ -103,7 +120,7 @@ impl ShmLimits {
             };
             let slot = largest.of(topic).max(INITIAL_SLICE).next_power_of_two() as u64;
             // A reader holds its unread buffer, the message it reads and those it keeps.
-            let held = topic.buffer() + 1 + kept(topic);
+            let held = self.buffer(topic) + 1 + kept(topic);
             let slots = |subscribers: usize| (subscribers * held + topic.history() + LOANS) as u64;
             footprint.reserved += publishers as u64 * slots(self.subscribers(topic)) * slot;
             footprint.written += publishers as u64 * slots(readers) * slot;
@@ -128,6 +145,21 @@ mod tests {
             assert_eq!(small.subscribers(topic), large.subscribers(topic));
         }
         assert_eq!(ShmLimits::for_processes(0).processes(), 1);
+    }
+
+    #[test]
+    fn a_process_of_several_environments_gets_room_for_each_ones_steps() {
+        let limits = ShmLimits::for_processes(5).with_envs_per_process(4);
+        assert_eq!(limits.buffer(Topic::Steps), 4 * Topic::Steps.buffer());
+        assert_eq!(limits.buffer(Topic::Batches), Topic::Batches.buffer());
+        let largest = LargestMessages {
+            step: 100_000,
+            batch: 3_000,
+            weights: 200_000,
+        };
+        let one = ShmLimits::for_processes(5).footprint(&largest);
+        let four = limits.footprint(&largest);
+        assert!(four.written > one.written && four.reserved > one.reserved);
     }
 
     #[test]

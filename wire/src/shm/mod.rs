@@ -172,7 +172,7 @@ impl ShmTransport {
             .max_publishers(self.limits.publishers(topic))
             .max_subscribers(self.limits.subscribers(topic))
             .max_nodes(self.limits.nodes())
-            .subscriber_max_buffer_size(topic.buffer())
+            .subscriber_max_buffer_size(self.limits.buffer(topic))
             // The message its sink is reading, and those it keeps back (see `kept`).
             .subscriber_max_borrowed_samples(kept(topic) + 1)
             .history_size(topic.history())
