@@ -330,6 +330,12 @@ impl RunConfig {
         (0..processes).map(move |p| from + p * k)
     }
 
+    /// The first environment of the actor process that plays `environment` (processes start
+    /// at multiples of `envs_per_actor`, here and on joined hosts).
+    pub fn process_of(&self, environment: u32) -> u32 {
+        environment - environment % self.envs_per_actor.max(1)
+    }
+
     /// Environment `index`'s exploration rate after it took `actions` actions.
     pub fn epsilon(&self, index: u32, actions: u64) -> f32 {
         match &self.apex_epsilon {

@@ -147,7 +147,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         hosts,
     };
     for fault in &mut summary.faults {
-        fault.lost_messages = lost_in_fault(&summary.buffer, &fault.role, config.envs_per_actor);
+        fault.lost_messages = lost_in_fault(&summary.buffer, &fault.role, &config);
     }
     write_json(&dir.summary(), &summary)?;
     supervisor.log.json(LAUNCHER_SUMMARY, &summary)?;
@@ -253,15 +253,15 @@ fn report_or<T: serde::de::DeserializeOwned>(path: &Path, missing: impl Fn() -> 
 }
 
 /// What the buffer counted lost to the fault of role `role`: the gaps in the streams of a
-/// crashed actor process's environments (`envs_per_actor` of them, from a multiple of it),
-/// or what the buffer that took over from a crashed one found missing.
-fn lost_in_fault(buffer: &BufferReport, role: &str, envs_per_actor: u32) -> Option<u64> {
+/// crashed actor process's environments, or what the buffer that took over from a crashed
+/// one found missing.
+fn lost_in_fault(buffer: &BufferReport, role: &str, config: &RunConfig) -> Option<u64> {
     let streams: Vec<u64> = buffer
         .streams
         .iter()
         .filter(|s| {
             let process = ActorId {
-                index: s.actor - s.actor % envs_per_actor.max(1),
+                index: config.process_of(s.actor),
                 incarnation: s.incarnation,
             };
             RoleId::Actor(process).name() == role

@@ -165,8 +165,8 @@ fn tick(
     let work: Vec<_> = envs
         .iter_mut()
         .map(|env| {
-            let choice = env.episode.is_some().then(|| choices.next());
-            (env, choice.flatten())
+            let choice = env.episode.is_some().then(|| choices.next()).flatten();
+            (env, choice)
         })
         .collect();
     let version = policy.version;
