@@ -421,7 +421,8 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             for primitive in [Primitive::Push, Primitive::Grasp] {
                 let here = acting.all_rotations(primitive, &input, &geometry)?;
                 let there = cpu_acting.all_rotations(primitive, &input, &geometry)?;
-                worst = worst.max(Difference::between(here.values(), there.values()).max_rel);
+                let difference = Difference::between(here.values(), there.values());
+                worst = qnet::agreement::worst(worst, difference.max_rel);
             }
             put("max_rel_diff_vs_cpu", f64::from(worst));
             let learning = LearningConfig::default();

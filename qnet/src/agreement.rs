@@ -12,6 +12,16 @@ pub struct Difference {
     pub max_rel: f32,
 }
 
+/// The larger of two differences, NaN when either is: `f32::max` drops a NaN, which would
+/// let maps of NaN agree with anything.
+pub fn worst(a: f32, b: f32) -> f32 {
+    if a.is_nan() || b.is_nan() {
+        f32::NAN
+    } else {
+        a.max(b)
+    }
+}
+
 impl Difference {
     /// `ours` against `reference`, element by element (the lengths must match; an all-zero
     /// reference gives an infinite or undefined `max_rel`, never a passing one).
@@ -21,11 +31,11 @@ impl Difference {
             reference.len(),
             "compared values differ in count"
         );
-        let scale = reference.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let scale = reference.iter().fold(0f32, |m, v| worst(m, v.abs()));
         let max_abs = ours
             .iter()
             .zip(reference)
-            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            .fold(0f32, |m, (a, b)| worst(m, (a - b).abs()));
         Self {
             max_abs,
             max_rel: max_abs / scale,
@@ -43,5 +53,16 @@ mod tests {
         assert_eq!(d.max_abs, 0.5);
         assert_eq!(d.max_rel, 0.25);
         assert!(Difference::between(&[0.0], &[0.0]).max_rel.is_nan());
+        // A NaN on either side is no agreement.
+        assert!(
+            Difference::between(&[1.0, f32::NAN], &[1.0, 2.0])
+                .max_rel
+                .is_nan()
+        );
+        assert!(
+            Difference::between(&[1.0, 2.0], &[f32::NAN, 2.0])
+                .max_rel
+                .is_nan()
+        );
     }
 }
