@@ -21,12 +21,13 @@ test:
 	test -x $(MCAP_VENV)/bin/python3 || { python3 -m venv $(MCAP_VENV) && $(MCAP_VENV)/bin/python3 -m pip install -q mcap mcap-protobuf-support; } || echo "the Python mcap reader is not installed: its cross-check is skipped"
 	$(CARGO) test --release --workspace --tests
 
-# The GPU path's tests (tests/wgpu.rs), in a build with the GPU backend (burn-wgpu) of only
-# what they need, on this machine's Vulkan device: Mesa's software one (lavapipe) where
-# there is no GPU, installed first when it is missing (as root with apt-get).
+# The GPU path's tests (tests/wgpu.rs, and CubeCL's autotune in tests/tune.rs), in a build
+# with the GPU backend (burn-wgpu, autotuned) of only what they need, on this machine's Vulkan
+# device: Mesa's software one (lavapipe) where there is no GPU, installed first when it is
+# missing (as root with apt-get). Their tune cache stays in target/, out of the user's.
 test-gpu:
 	tests/vulkan/install.sh
-	$(CARGO) test --release --features wgpu --test wgpu
+	PUSHGRASP_TUNE_CACHE=$(CURDIR)/target/tune $(CARGO) test --release --features wgpu --test wgpu --test tune
 
 # The peers run beside ours when they can be installed (into target/): onnxruntime and numpy
 # beside the nets (bench learner), cpprb beside the replay (bench buffer). PyTorch's training

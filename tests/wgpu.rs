@@ -303,6 +303,11 @@ fn a_short_run_trains_its_learner_on_wgpu() {
         "the learner stopped short of its budget: {summary}"
     );
     assert_eq!(summary["faults"], serde_json::json!([]), "{summary}");
+    // The learner warmed up on its device before its first batch.
+    assert!(
+        summary["learner"]["warm_up_s"].as_f64().unwrap() > 0.0,
+        "{summary}"
+    );
     assert!(
         summary["failure"].is_null(),
         "the run failed: {}",

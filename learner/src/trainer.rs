@@ -67,6 +67,7 @@ pub struct StepReport {
 }
 
 /// The nets being trained, their optimiser, and which of them learns.
+#[derive(Clone)]
 pub struct Trainer {
     nets: QNets,
     /// The Polyak average of `nets` in inference form, when the config averages.
@@ -316,6 +317,51 @@ impl Trainer {
             return Ok(None);
         };
         double_q_values(&self.nets.valid(), target, states, &self.geometry).map(Some)
+    }
+
+    /// Takes one update of each of `nets` on `batch` blank samples, and values `batch` blank
+    /// next states when the config computes them, on a copy of this trainer: this one is
+    /// left as it was. On a GPU the first use of each operation's shape tunes its kernels
+    /// (CubeCL's autotune: seconds on a GPU, minutes on a software device, then kept on
+    /// disk); warming up does that before training, where the caller can say so, instead of
+    /// inside the first updates.
+    pub fn warm_up(self, nets: &[TrainedNet], batch: usize) -> Result<(), LearnerError> {
+        let side = self.geometry.side();
+        let blank = NetInput {
+            side,
+            colour: vec![0.0; 3 * side * side],
+            depth: vec![0.0; side * side],
+            mask: vec![0.0; side * side],
+        };
+        let centre = side / 2;
+        for &net in nets {
+            let mut scratch = self.clone();
+            scratch.set_trained(net);
+            let samples: Vec<Sample> = (0..batch)
+                .map(|i| Sample {
+                    input: blank.clone(),
+                    action: Action {
+                        primitive: net.primitive(),
+                        rotation: (i % usize::from(ROTATIONS)) as u8,
+                        row: centre,
+                        col: centre,
+                    },
+                    label: 0.0,
+                    weight: 1.0,
+                    succeeded: false,
+                })
+                .collect();
+            scratch.train_step(&samples)?;
+            let states: Vec<NextState> = (0..batch)
+                .map(|_| NextState {
+                    input: blank.clone(),
+                    primitive: net.primitive(),
+                    allowed: vec![true; side * side],
+                })
+                .collect();
+            scratch.next_values(&states)?;
+        }
+        Ok(())
     }
 
     /// Continues a run from its checkpoint: the nets it holds, the trained nets when they

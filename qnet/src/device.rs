@@ -6,6 +6,7 @@
 //! opens every backend a run names before it starts a role).
 
 use std::fmt;
+use std::path::PathBuf;
 use std::str::FromStr;
 
 use burn::tensor::Device;
@@ -92,10 +93,27 @@ impl FromStr for Backend {
     }
 }
 
+/// Where CubeCL keeps its autotune results on disk, for every process of every run on this
+/// machine to load instead of tuning again: `$PUSHGRASP_TUNE_CACHE`, else `pushgrasp/tune`
+/// in the user's cache directory (`$XDG_CACHE_HOME`, else `~/.cache`); `None` with neither
+/// (CubeCL then picks a place). Results are keyed by the device, its driver and CubeCL's
+/// version, so one directory serves every GPU of the machine.
+pub fn tune_cache() -> Option<PathBuf> {
+    let set = |name: &str| std::env::var_os(name).filter(|value| !value.is_empty());
+    if let Some(dir) = set("PUSHGRASP_TUNE_CACHE") {
+        return Some(dir.into());
+    }
+    let cache = set("XDG_CACHE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| set("HOME").map(|home| PathBuf::from(home).join(".cache")))?;
+    Some(cache.join("pushgrasp").join("tune"))
+}
+
 #[cfg(feature = "wgpu")]
 mod gpu {
     use std::sync::OnceLock;
 
+    use burn::cubecl::config::{CubeClRuntimeConfig, RuntimeConfig};
     use burn::tensor::Device;
 
     use super::{Adapter, OpenDevice};
@@ -107,6 +125,13 @@ mod gpu {
     pub fn open() -> Result<OpenDevice, QNetError> {
         OPENED
             .get_or_init(|| {
+                if let Some(dir) = super::tune_cache() {
+                    // CubeCL roots its caches where its config says when it loads the
+                    // config (a `cubecl.toml`, else beside the nearest Cargo.toml): loaded
+                    // first, so that this root stands.
+                    let _ = <CubeClRuntimeConfig as RuntimeConfig>::get();
+                    burn::cubecl::environment::set_root(dir);
+                }
                 let (device, setup) = Device::wgpu_options().init_with_setup().map_err(|e| {
                     format!(
                         "{e}. Install the Vulkan loader (Debian's `libvulkan1`) and the \
@@ -116,6 +141,13 @@ mod gpu {
                     )
                 })?;
                 let info = setup.adapter.get_info();
+                if info.device_type == burn::cubecl::wgpu::wgpu::DeviceType::Cpu
+                    && std::env::var_os("PUSHGRASP_TUNE_SOFTWARE").is_none()
+                {
+                    // A tune costs a software device minutes a shape, past anything it
+                    // saves: each operation runs its first kernel that serves instead.
+                    burn::cubecl::tune::defer_tuning(true);
+                }
                 let driver = [info.driver.trim(), info.driver_info.trim()]
                     .into_iter()
                     .filter(|part| !part.is_empty())

@@ -30,7 +30,7 @@ pub use agreement::Difference;
 /// The device the nets live on (burn's).
 pub use burn::tensor::Device;
 pub use config::QNetConfig;
-pub use device::{Adapter, Backend, OpenDevice};
+pub use device::{Adapter, Backend, OpenDevice, tune_cache};
 pub use error::QNetError;
 pub use geometry::Geometry;
 pub use inference::Inference;

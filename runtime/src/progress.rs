@@ -2,12 +2,13 @@
 //! reports), how it shows it ([`Display`]), and what it says of the run at the end
 //! ([`Summary`]).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
+use mcaplog::LogLevel;
 use serde::{Deserialize, Serialize};
 use wire::{Inbox, Message, Role, Status};
 
@@ -95,7 +96,7 @@ impl Progress {
                 self.actors.insert(actor, progress);
             }
             Status::Failed { role, error } => return Some(format!("{role}: {error}")),
-            Status::Warning { .. } => {}
+            Status::Tuning { .. } | Status::Warning { .. } => {}
         }
         None
     }
@@ -282,6 +283,8 @@ pub struct Watch {
     /// When the actors were last held back: by the buffer's rate limiter, or on a joined
     /// host by its link to the central host.
     actors_held: Option<Instant>,
+    /// The roles whose tuning has been announced.
+    tuning: HashSet<Role>,
 }
 
 impl Watch {
@@ -309,6 +312,19 @@ impl Watch {
             if let Status::Warning { role, warning } = &report {
                 supervisor.announce(&format!("warning from the {role}: {warning}"))?;
             }
+            if let Status::Tuning { role } = report
+                && self.tuning.insert(role)
+            {
+                let kept = qnet::tune_cache()
+                    .map_or(String::new(), |dir| format!(", kept in {}", dir.display()));
+                supervisor.say(
+                    LogLevel::Info,
+                    &format!(
+                        "the {role} is warming up: tuning its GPU kernels where no tune is \
+                         kept yet (CubeCL's autotune, once per device and shape{kept})"
+                    ),
+                )?;
+            }
             if let Some(failure) = self.progress.take(report) {
                 self.failures.push(failure);
             }
@@ -328,6 +344,7 @@ fn reporter(report: &Status) -> Option<String> {
     match *report {
         Status::Buffer { .. } => Some(Role::Buffer.name().into()),
         Status::Learner { .. } => Some(Role::Learner.name().into()),
+        Status::Tuning { role } => Some(role.name().into()),
         Status::Actor {
             actor, incarnation, ..
         } => Some(

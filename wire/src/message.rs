@@ -224,6 +224,9 @@ pub enum Status {
         weights_version: u64,
         loss: Option<f32>,
     },
+    /// A role is tuning its GPU kernels before it starts work (CubeCL's autotune, seconds
+    /// on a GPU, minutes on a software device): alive, though it sends nothing else yet.
+    Tuning { role: Role },
     /// A role could not go on; the launcher stops the run with this message.
     Failed { role: Role, error: String },
     /// A role goes on, but the person running it should know (the launcher prints it): it

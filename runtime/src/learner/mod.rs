@@ -15,7 +15,7 @@ use learner::checkpoint::config_hash;
 use learner::{Checkpoint, Manifest, NextState, Sample, SavedNets, Trainer};
 use mcaplog::{LogLevel, RunLog};
 use policy::{grasp_label, grasp_region, push_label, valid_push_starts};
-use qnet::{NetInput, QNets};
+use qnet::{Backend, NetInput, QNets};
 use serde::{Deserialize, Serialize};
 use sim::Primitive;
 use wire::{
@@ -62,6 +62,10 @@ pub struct LearnerReport {
     /// their actors' values.
     #[serde(default)]
     pub learned_next_values: u64,
+    /// Seconds this process spent warming up before its first batch: tuning its kernels on
+    /// a GPU backend, none on the CPU's ([`Trainer::warm_up`]).
+    #[serde(default)]
+    pub warm_up_s: f64,
 }
 
 /// The training sample of a stored transition: its label from reward and `next_value`, the
@@ -115,6 +119,10 @@ pub fn run(
         crate::role::warn(&mut ports.status, log, Role::Learner, warning)?;
     }
     role.publish(&mut ports.weights)?;
+    // Only a GPU backend tunes its kernels; the CPU's are chosen by shape.
+    if config.backend.learner == Backend::Wgpu {
+        role.warm_up(&mut ports.status, lifeline)?;
+    }
     let mut asked = Requests::new(start.incarnation);
     let mut last_status = Instant::now();
     while !lifeline.lost() && !stop_requested(&mut ports.control, Role::Learner)? {
@@ -411,6 +419,44 @@ impl<'a> LearnerRole<'a> {
             }
         }
         Ok(values)
+    }
+
+    /// Warms a copy of the trainer up ([`Trainer::warm_up`]) on a thread of its own, telling
+    /// the launcher meanwhile that the learner is tuning: a first tune takes seconds on a GPU
+    /// and minutes on a software device, past the heartbeat after which a silent role is
+    /// killed. Returns at once, leaving the warm-up behind, when the launcher is gone.
+    fn warm_up(&mut self, status: &mut Outbox, lifeline: &Lifeline) -> Result<()> {
+        let started = Stopwatch::start();
+        let scratch = self.trainer.clone();
+        let nets = self.config.trained_nets();
+        let batch = self.config.learner.batch_size as usize;
+        let warm_up = std::thread::spawn(move || scratch.warm_up(nets, batch));
+        let mut reported: Option<Instant> = None;
+        while !warm_up.is_finished() {
+            if lifeline.lost() {
+                return Ok(());
+            }
+            if reported.is_none_or(|at| at.elapsed() >= STATUS_EVERY) {
+                status.send(&Message::Status(Status::Tuning {
+                    role: Role::Learner,
+                }))?;
+                reported = Some(Instant::now());
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        match warm_up.join() {
+            Ok(warmed) => warmed.context("the learner's warm-up step")?,
+            Err(_) => bail!("the learner's warm-up step panicked"),
+        }
+        self.report.warm_up_s = started.wall_s();
+        self.log.log_line(
+            LogLevel::Info,
+            &format!(
+                "warmed up (kernels tuned) in {:.1} s",
+                self.report.warm_up_s
+            ),
+        )?;
+        Ok(())
     }
 
     fn status(&self) -> Message {

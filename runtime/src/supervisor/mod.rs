@@ -362,8 +362,13 @@ impl Supervisor {
 
     /// Says `message` on the console and in the launcher's log.
     pub fn announce(&mut self, message: &str) -> Result<()> {
+        self.say(LogLevel::Warning, message)
+    }
+
+    /// Prints `message` for the person running the launcher, and logs it at `level`.
+    pub fn say(&mut self, level: LogLevel, message: &str) -> Result<()> {
         eprintln!("{message}");
-        Ok(self.log.log_line(LogLevel::Warning, message)?)
+        Ok(self.log.log_line(level, message)?)
     }
 
     /// Starts the buffer or the learner again from its newest saved state, after it exited
