@@ -41,15 +41,6 @@ pub fn tune_benchmark<'a, F: TuneInputs, Out: AutotuneOutput>(
 }
 
 impl<F: TuneInputs, Out: AutotuneOutput> TuneFn<F, Out> {
-    /// Run the operation as a candidate being compiled or measured: a key it reaches itself
-    /// is not tuned inside this one's measurement ([`super::deferral`]).
-    pub(crate) fn execute_measured<'a>(
-        &self,
-        inputs: <F as TuneInputs>::At<'a>,
-    ) -> Result<Out, AutotuneError> {
-        super::deferral::measuring(|| self.execute(inputs))
-    }
-
     /// Run the operation once without measuring it, to trigger compilation.
     ///
     /// Expects to already hold exclusive device access; the adaptive driver takes it once for
@@ -91,7 +82,7 @@ impl<F: TuneInputs, Out: AutotuneOutput> TuneFn<F, Out> {
             );
         }
         // The output is returned so dead code elimination can't drop the work being profiled.
-        let profiled = client.profile(move || self.execute_measured(inputs), &self.name);
+        let profiled = client.profile(move || self.execute(inputs), &self.name);
 
         match profiled {
             Ok((Ok(_), duration)) => Ok(duration),
@@ -164,10 +155,7 @@ fn warmup<'a, F: TuneInputs, Out: AutotuneOutput>(
 
     for _ in 0..num_warmup {
         let inputs = inputs.clone();
-        let profiled = client.profile(
-            move || operation.execute_measured(inputs),
-            &operation.name,
-        );
+        let profiled = client.profile(move || operation.execute(inputs), &operation.name);
 
         match profiled {
             // The tunable rejected its own configuration, which it will do identically on

@@ -340,8 +340,8 @@ impl<K: AutotuneKey> Tuner<K> {
                 }
             }
 
-            // Left untuned where tuning is deferred, or inside another key's measurement: the
-            // caller runs the first candidate that serves, as for a key being tuned elsewhere.
+            // Left untuned while tuning is deferred: the caller runs the first candidate that
+            // serves, as for a key being tuned elsewhere.
             if !compiling && super::deferral::tuning_deferred() {
                 return TuneCacheResult::Pending;
             }
