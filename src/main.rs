@@ -2,11 +2,15 @@
 //! subcommand's arguments and one call into the crate that does it.
 
 use anyhow::Result;
+use cap::Cap;
 use clap::{Parser, Subcommand};
 use mimalloc::MiMalloc;
 
+/// mimalloc, with a count of the bytes it holds for the program (no limit set): each
+/// process logs it beside its resident memory (`runtime::memory`), which tells live data
+/// that grows from freed memory the allocator keeps.
 #[global_allocator]
-static ALLOCATOR: MiMalloc = MiMalloc;
+static ALLOCATOR: Cap<MiMalloc> = Cap::new(MiMalloc, usize::MAX);
 
 /// Every process hands memory it freed back to the kernel at mimalloc's own pace and opts
 /// out of transparent huge pages (its children inherit that). Kept longer in the processes
@@ -71,6 +75,7 @@ enum Command {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     hand_back_freed_memory();
+    runtime::memory::count_live_bytes_with(|| ALLOCATOR.allocated());
     match cli.command {
         Command::Scene(command) => scene_tools::run(command),
         Command::Episode(args) => scene_tools::episode(&args),

@@ -8,6 +8,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use runtime::memory::MemoryRecord;
+use runtime::record::PROCESS_MEMORY;
 use serde_json::Value;
 
 #[path = "common/stage1.rs"]
@@ -391,6 +393,21 @@ fn the_logs_of_a_run_say_what_the_processes_counted() {
             .collect();
         if let Some(theirs) = python_counts(Path::new(file["file"].as_str().unwrap())) {
             assert_eq!(ours, theirs, "{file}");
+        }
+        // Every process logs its memory, the binary's allocator counting its live bytes: a
+        // role as it starts and as it ends, the launcher as it starts.
+        let path = file["file"].as_str().unwrap();
+        let memory = mcaplog::json_messages(path, PROCESS_MEMORY).unwrap();
+        let least = if path.ends_with("launcher.mcap") {
+            1
+        } else {
+            2
+        };
+        assert!(memory.len() >= least, "{path}: {memory:?}");
+        for record in memory {
+            let record: MemoryRecord = serde_json::from_value(record).unwrap();
+            assert!(record.rss_mb > 0.0 && record.anon_mb > 0.0, "{record:?}");
+            assert!(record.live_mb.is_some_and(|mb| mb > 0.0), "{record:?}");
         }
     }
 

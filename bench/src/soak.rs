@@ -6,7 +6,10 @@
 //! its heap, where a leak shows), pages of files it maps (its program's code, paged in as
 //! new paths run) and shared memory it has touched (the topics' segments, bounded by their
 //! sizes). End against start does not tell a plateau from a ratchet, so each process's
-//! slope over the last third of the window is printed too, and whether it still grows.
+//! slope over the last third of the window is printed too, and whether it still grows. Each
+//! process's own log of its live bytes (what the program holds allocated) gives the same
+//! figures of those: live bytes that stay level under a resident rise are the allocator's
+//! keep, not the program's data.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -19,7 +22,8 @@ use serde_json::{Map, Value};
 
 use super::e2e::round;
 use super::{print_figures, status_mb};
-use runtime::record::LAUNCHER_PROGRESS;
+use runtime::memory::MemoryRecord;
+use runtime::record::{LAUNCHER_PROGRESS, PROCESS_MEMORY};
 use runtime::supervisor::ProcessEntry;
 use runtime::{RunDir, read_json};
 
@@ -73,7 +77,7 @@ pub fn bench_soak(args: &SoakBenchArgs) -> Result<()> {
         .stderr(Stdio::null())
         .spawn()
         .context("starting train")?;
-    let start = Instant::now();
+    let (start, start_ns) = (Instant::now(), mcaplog::now_ns());
     let every = Duration::from_secs_f64(args.every_s);
     let fill_timeout = Duration::from_secs_f64(args.fill_timeout_min * 60.0);
     let window = Duration::from_secs_f64(args.minutes * 60.0);
@@ -106,7 +110,13 @@ pub fn bench_soak(args: &SoakBenchArgs) -> Result<()> {
     launcher.wait()?;
     outcome?;
     let full_at = full_at.expect("the loop ends after the fill");
-    let mut figures = growth(&samples, full_at + window / 4, replay_full(&dir));
+    let mut live = BTreeMap::new();
+    if let Some((_, last)) = samples.last() {
+        for process in last.keys() {
+            live.insert(process.clone(), live_series(&dir, process, start_ns)?);
+        }
+    }
+    let mut figures = growth(&samples, &live, full_at + window / 4, replay_full(&dir));
     figures.insert("fill_min".into(), round(full_at.as_secs_f64() / 60.0));
     figures.insert("measured_min".into(), round(args.minutes * 0.75));
     print_figures(&Value::Object(figures), args.json)
@@ -133,11 +143,32 @@ impl Memory {
     }
 }
 
+/// A process's live bytes over the soak, from its log's memory records: (seconds since the
+/// soak began, MB).
+fn live_series(dir: &RunDir, process: &str, start_ns: u64) -> Result<Vec<(f64, f64)>> {
+    let path = dir.mcap(process);
+    let records = mcaplog::timed_json_messages(&path, PROCESS_MEMORY)
+        .with_context(|| format!("reading the memory records of {process}"))?;
+    records
+        .into_iter()
+        .filter_map(|(ns, value)| {
+            let record = serde_json::from_value::<MemoryRecord>(value);
+            let at_s = ns.saturating_sub(start_ns) as f64 * 1e-9;
+            record
+                .map(|r| r.live_mb.map(|mb| (at_s, mb)))
+                .with_context(|| format!("a memory record in {}", path.display()))
+                .transpose()
+        })
+        .collect()
+}
+
 /// Each process's memory at the start of the measured window (the first sample from
 /// `from`) and at the end, by kind, its growth, and the largest growth (resident, and
-/// anonymous) beside the bound.
+/// anonymous) beside the bound; and the same of its live bytes (`live`, seconds and MB, as
+/// it logged them), which tell data it keeps from freed memory its allocator keeps.
 fn growth(
     samples: &[(Duration, BTreeMap<String, Memory>)],
+    live: &BTreeMap<String, Vec<(f64, f64)>>,
     from: Duration,
     full: bool,
 ) -> Map<String, Value> {
@@ -148,14 +179,17 @@ fn growth(
         .collect();
     let mut figures = Map::new();
     figures.insert("replay_full".into(), full.into());
-    let (mut most, mut most_anon) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
+    let (mut most, mut most_anon, mut most_live) =
+        (f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+    let pct = |begin: f64, end: f64| (end - begin) / begin * 100.0;
+    // A role logs its memory once more as it ends, its state dropped: not the run's.
+    let until_s = samples.last().map_or(0.0, |(at, _)| at.as_secs_f64());
     if let (Some(first), Some(last)) = (window.first(), window.last()) {
         for (process, end) in last.iter() {
             // A process started during the window (a restarted role) has no start figure.
             let Some(begin) = first.get(process).filter(|m| m.rss > 0.0) else {
                 continue;
             };
-            let pct = |begin: f64, end: f64| (end - begin) / begin * 100.0;
             most = most.max(pct(begin.rss, end.rss));
             most_anon = most_anon.max(pct(begin.anon, end.anon));
             figures.insert(
@@ -184,10 +218,29 @@ fn growth(
             let (per_h, grows) = last_third(&series);
             figures.insert(format!("rss_mb_per_h_last_third_{process}"), round(per_h));
             figures.insert(format!("still_grows_{process}"), grows.into());
+            let live: Vec<(f64, f64)> = live
+                .get(process)
+                .into_iter()
+                .flatten()
+                .copied()
+                .filter(|&(at_s, _)| at_s >= from.as_secs_f64() && at_s <= until_s)
+                .collect();
+            if let (Some(&(_, begin)), Some(&(_, end))) = (live.first(), live.last()) {
+                most_live = most_live.max(pct(begin, end));
+                figures.insert(format!("live_mb_{process}_start"), round(begin));
+                figures.insert(format!("live_mb_{process}_end"), round(end));
+                figures.insert(format!("live_growth_pct_{process}"), round(pct(begin, end)));
+                let (per_h, grows) = last_third(&live);
+                figures.insert(format!("live_mb_per_h_last_third_{process}"), round(per_h));
+                figures.insert(format!("live_still_grows_{process}"), grows.into());
+            }
         }
     }
     figures.insert("rss_growth_pct_max".into(), round(most));
     figures.insert("anon_growth_pct_max".into(), round(most_anon));
+    if most_live.is_finite() {
+        figures.insert("live_growth_pct_max".into(), round(most_live));
+    }
     figures.insert("rss_growth_pct_bound".into(), BOUND_PCT.into());
     figures
 }

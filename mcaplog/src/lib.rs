@@ -24,7 +24,10 @@ pub use foxglove::{
     Color, CompressedImage, CubePrimitive, Log, LogLevel, Pose, Quaternion, RawImage, SceneEntity,
     SceneUpdate, Vector3, timestamp,
 };
-pub use read::{ChannelSummary, FileSummary, json_messages, proto_messages, read_summary, recover};
+pub use read::{
+    ChannelSummary, FileSummary, json_messages, proto_messages, read_summary, recover,
+    timed_json_messages,
+};
 pub use write::{Options, RunLog};
 
 use std::path::PathBuf;

@@ -192,11 +192,18 @@ pub fn recover(input: impl AsRef<Path>, output: impl AsRef<Path>) -> Result<File
 /// crash gives every message of its complete chunks). A message that is not JSON is an error
 /// naming the file and the topic.
 pub fn json_messages(path: impl AsRef<Path>, topic: &str) -> Result<Vec<serde_json::Value>> {
-    let path = path.as_ref();
-    let messages = topic_messages(path, topic, "json", |data| {
-        serde_json::from_slice(data).map_err(|e| format!("a message is not JSON: {e}"))
-    })?;
+    let messages = timed_json_messages(path, topic)?;
     Ok(messages.into_iter().map(|(_, value)| value).collect())
+}
+
+/// [`json_messages`], each with its log time (ns since the Unix epoch).
+pub fn timed_json_messages(
+    path: impl AsRef<Path>,
+    topic: &str,
+) -> Result<Vec<(u64, serde_json::Value)>> {
+    topic_messages(path.as_ref(), topic, "json", |data| {
+        serde_json::from_slice(data).map_err(|e| format!("a message is not JSON: {e}"))
+    })
 }
 
 /// Every protobuf message on `topic` (e.g. a `foxglove.RawImage`), decoded as `M`, with its

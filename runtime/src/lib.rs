@@ -14,6 +14,7 @@ pub mod join;
 pub mod launch;
 pub mod learner;
 pub mod machine;
+pub mod memory;
 pub mod pipeline;
 pub mod pretrain;
 pub mod progress;

@@ -15,6 +15,7 @@ use wire::{Inbox, Message, Role, Status};
 use crate::actor::{ActorId, ActorReport};
 use crate::buffer::BufferReport;
 use crate::learner::LearnerReport;
+use crate::memory::MemorySampler;
 use crate::read_json;
 use crate::record::LAUNCHER_PROGRESS;
 use crate::role::RoleId;
@@ -196,7 +197,7 @@ pub fn percent(share: Option<f64>) -> String {
 }
 
 /// The progress a person sees: a bar on a terminal, else a line every 10 s; and the
-/// launcher's log of it every second.
+/// launcher's log of it every second, with the launcher process's memory.
 pub struct Display {
     bar: Option<ProgressBar>,
     episodes: u64,
@@ -207,6 +208,7 @@ pub struct Display {
     rate_updates: u64,
     rate_at: Instant,
     updates_per_s: f64,
+    memory: MemorySampler,
 }
 
 impl Display {
@@ -232,6 +234,7 @@ impl Display {
             rate_updates: 0,
             rate_at: now,
             updates_per_s: 0.0,
+            memory: MemorySampler::default(),
         }
     }
 
@@ -246,6 +249,7 @@ impl Display {
             supervisor.log.json(LAUNCHER_PROGRESS, progress)?;
             self.last_logged = Instant::now();
         }
+        self.memory.log_if_due(&supervisor.log)?;
         let line = progress.line(self.updates_per_s);
         match &self.bar {
             Some(bar) => {

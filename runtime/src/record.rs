@@ -26,6 +26,9 @@ pub const BUFFER_STATS: &str = "/buffer/stats";
 pub const LEARNER_UPDATE: &str = "/learner/update";
 /// The launcher's view of the run, once a second.
 pub const LAUNCHER_PROGRESS: &str = "/launcher/progress";
+/// Every process's memory (`memory::MemoryRecord`), every `memory::MEMORY_EVERY`: each role
+/// process's own log, and the launcher's.
+pub const PROCESS_MEMORY: &str = "/process/memory";
 /// The run's summary (as `summary.json`), when it ends.
 pub const LAUNCHER_SUMMARY: &str = "/launcher/summary";
 

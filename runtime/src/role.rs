@@ -15,6 +15,7 @@ use wire::{Message, Outbox, Role, Status, Topic, Transport};
 
 use crate::actor::ActorId;
 use crate::config::RunConfig;
+use crate::memory::sampling_memory;
 use crate::run_dir::RunDir;
 use crate::{Lifeline, write_json};
 
@@ -104,7 +105,7 @@ pub fn run_role(
     let report = dir.report(&name);
     let log = open_log(dir, &name, config)?;
     log.log_line(LogLevel::Info, &format!("{name} started"))?;
-    let result = match id {
+    let work = || match id {
         RoleId::Buffer(incarnation) => {
             let start = crate::buffer::Start {
                 resume: from.resume,
@@ -133,6 +134,13 @@ pub fn run_role(
                     write_json(&dir.report(&id.name()), r)
                 })
             }),
+    };
+    // A role with a process of its own logs that process's memory; threads of one process
+    // leave it to the launcher's log.
+    let result = if lifeline.own_process() {
+        sampling_memory(&log, work)
+    } else {
+        work()
     };
     match &result {
         Ok(()) => log.log_line(LogLevel::Info, &format!("{name} stopped"))?,
