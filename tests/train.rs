@@ -9,7 +9,7 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use runtime::memory::MemoryRecord;
-use runtime::record::PROCESS_MEMORY;
+use runtime::record::{LAUNCHER_SUMMARY, PROCESS_MEMORY};
 use serde_json::Value;
 
 #[path = "common/stage1.rs"]
@@ -430,6 +430,53 @@ fn the_logs_of_a_run_say_what_the_processes_counted() {
         repaired["files"][0]["messages"],
         damaged["files"][0]["messages"]
     );
+}
+
+#[test]
+fn a_run_logged_in_segments_reads_back_whole() {
+    let logs = logs();
+    // A segment every 0.3 s: a run of a few seconds writes several files per process.
+    let args = [
+        "--actors",
+        "1",
+        "--episodes",
+        "8",
+        "--run-id",
+        "segmented",
+        "--set",
+        "logging.segment_minutes=0.005",
+    ];
+    train_ok(logs.path(), &args);
+    let dir = logs.path().join("segmented");
+    let summary = summary(logs.path(), "segmented");
+    let report = inspect(&dir);
+    let received = u(&summary["buffer"]["steps_received"]);
+    assert_eq!(u(&report["steps_sent"]), received);
+    assert_eq!(u(&report["steps_received"]), received);
+    assert_eq!(report["episodes"], summary["buffer"]["episodes"]);
+    assert_eq!(report["learner_updates"], summary["learner"]["updates"]);
+    let segments = mcaplog::segments(&dir.join("launcher.mcap"));
+    assert!(segments.len() > 1, "{segments:?}");
+    // The summary is logged as the run ends: in the last segment, found from the first file.
+    let logged = mcaplog::newest_json_message(&segments[0], LAUNCHER_SUMMARY).unwrap();
+    assert_eq!(logged.unwrap()["run_id"], "segmented");
+    // Each segment is a whole file, each log's segments read in order after its first.
+    let files: Vec<&str> = report["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|file| file["file"].as_str().unwrap())
+        .collect();
+    let launcher: Vec<&str> = files
+        .iter()
+        .copied()
+        .filter(|file| file.contains("launcher"))
+        .collect();
+    let expected: Vec<String> = segments.iter().map(|s| s.display().to_string()).collect();
+    assert_eq!(launcher, expected);
+    for file in report["files"].as_array().unwrap() {
+        assert_eq!(file["recovered"], false, "{file}");
+    }
 }
 
 #[test]

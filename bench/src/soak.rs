@@ -58,6 +58,10 @@ pub struct SoakBenchArgs {
     /// never fills the other); the measured time starts then if it has not.
     #[arg(long, default_value_t = 60.0)]
     fill_timeout_min: f64,
+    /// Also write every sample to this CSV file (`at_s,process,kind,mb`; kinds rss, anon,
+    /// file, shmem and live), to plot the curves.
+    #[arg(long)]
+    series: Option<PathBuf>,
 }
 
 pub fn bench_soak(args: &SoakBenchArgs) -> Result<()> {
@@ -116,6 +120,9 @@ pub fn bench_soak(args: &SoakBenchArgs) -> Result<()> {
             live.insert(process.clone(), live_series(&dir, process, start_ns)?);
         }
     }
+    if let Some(path) = &args.series {
+        write_series(path, &samples, &live)?;
+    }
     let mut figures = growth(&samples, &live, full_at + window / 4, replay_full(&dir));
     figures.insert("fill_min".into(), round(full_at.as_secs_f64() / 60.0));
     figures.insert("measured_min".into(), round(args.minutes * 0.75));
@@ -143,29 +150,58 @@ impl Memory {
     }
 }
 
-/// A process's live bytes over the soak, from its log's memory records: (seconds since the
-/// soak began, MB).
+/// A process's live bytes over the soak, from its log's memory records (every segment):
+/// (seconds since the soak began, MB).
 fn live_series(dir: &RunDir, process: &str, start_ns: u64) -> Result<Vec<(f64, f64)>> {
-    let path = dir.mcap(process);
-    let records = mcaplog::timed_json_messages(&path, PROCESS_MEMORY)
-        .with_context(|| format!("reading the memory records of {process}"))?;
-    records
-        .into_iter()
-        .filter_map(|(ns, value)| {
-            let record = serde_json::from_value::<MemoryRecord>(value);
+    let mut series = Vec::new();
+    for path in mcaplog::segments(&dir.mcap(process)) {
+        let records = mcaplog::timed_json_messages(&path, PROCESS_MEMORY)?;
+        for (ns, value) in records {
+            let record = serde_json::from_value::<MemoryRecord>(value)
+                .with_context(|| format!("a memory record in {}", path.display()))?;
             let at_s = ns.saturating_sub(start_ns) as f64 * 1e-9;
-            record
-                .map(|r| r.live_mb.map(|mb| (at_s, mb)))
-                .with_context(|| format!("a memory record in {}", path.display()))
-                .transpose()
-        })
-        .collect()
+            series.extend(record.live_mb.map(|mb| (at_s, mb)));
+        }
+    }
+    Ok(series)
+}
+
+/// Every sample as a row of `at_s,process,kind,mb`.
+fn write_series(
+    path: &Path,
+    samples: &[(Duration, BTreeMap<String, Memory>)],
+    live: &BTreeMap<String, Vec<(f64, f64)>>,
+) -> Result<()> {
+    let mut rows = vec!["at_s,process,kind,mb".to_string()];
+    for (at, processes) in samples {
+        for (process, m) in processes {
+            let kinds = [
+                ("rss", m.rss),
+                ("anon", m.anon),
+                ("file", m.file),
+                ("shmem", m.shmem),
+            ];
+            for (kind, mb) in kinds {
+                rows.push(format!("{:.1},{process},{kind},{mb:.3}", at.as_secs_f64()));
+            }
+        }
+    }
+    for (process, series) in live {
+        rows.extend(
+            series
+                .iter()
+                .map(|(at_s, mb)| format!("{at_s:.1},{process},live,{mb:.3}")),
+        );
+    }
+    rows.push(String::new());
+    std::fs::write(path, rows.join("\n")).with_context(|| format!("writing {}", path.display()))
 }
 
 /// Each process's memory at the start of the measured window (the first sample from
 /// `from`) and at the end, by kind, its growth, and the largest growth (resident, and
 /// anonymous) beside the bound; and the same of its live bytes (`live`, seconds and MB, as
-/// it logged them), which tell data it keeps from freed memory its allocator keeps.
+/// it logged them; each end the median of its tenth of the window), which tell data it keeps
+/// from freed memory its allocator keeps.
 fn growth(
     samples: &[(Duration, BTreeMap<String, Memory>)],
     live: &BTreeMap<String, Vec<(f64, f64)>>,
@@ -225,7 +261,13 @@ fn growth(
                 .copied()
                 .filter(|&(at_s, _)| at_s >= from.as_secs_f64() && at_s <= until_s)
                 .collect();
-            if let (Some(&(_, begin)), Some(&(_, end))) = (live.first(), live.last()) {
+            // Live bytes swing within a step (a learner's by tens of MB): each end is the
+            // median of its tenth of the window.
+            let tenth = live.len().div_ceil(10);
+            if let (Some(begin), Some(end)) = (
+                median(live.iter().take(tenth).map(|p| p.1)),
+                median(live.iter().rev().take(tenth).map(|p| p.1)),
+            ) {
                 most_live = most_live.max(pct(begin, end));
                 figures.insert(format!("live_mb_{process}_start"), round(begin));
                 figures.insert(format!("live_mb_{process}_end"), round(end));
@@ -243,6 +285,13 @@ fn growth(
     }
     figures.insert("rss_growth_pct_bound".into(), BOUND_PCT.into());
     figures
+}
+
+fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let mut values: Vec<f64> = values.collect();
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    (n > 0).then(|| (values[(n - 1) / 2] + values[n / 2]) / 2.0)
 }
 
 /// The least-squares slope (MB an hour) of resident memory over the last third of a series
@@ -282,9 +331,9 @@ fn last_third(series: &[(f64, f64)]) -> (f64, bool) {
 
 /// Whether the run's newest progress record shows its replay full (both rings).
 fn replay_full(dir: &RunDir) -> bool {
-    mcaplog::json_messages(dir.mcap("launcher"), LAUNCHER_PROGRESS)
+    mcaplog::newest_json_message(dir.mcap("launcher"), LAUNCHER_PROGRESS)
         .ok()
-        .and_then(|records| records.last().cloned())
+        .flatten()
         .is_some_and(|last| {
             let (stored, capacity) = (last["stored"].as_u64(), last["capacity"].as_u64());
             matches!((stored, capacity), (Some(s), Some(c)) if c > 0 && s >= c)

@@ -2,7 +2,7 @@
 //! actors' steps, the learner's updates and the buffer's counters, and the curves drawn from
 //! them.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -100,7 +100,8 @@ pub fn pipeline_stages(path: &Path) -> Vec<PathBuf> {
 
 /// The `.mcap` files of a run directory, or the one file given. A run across hosts has its
 /// joined hosts' directories under `hosts/` (gathered there, or written there on a shared
-/// filesystem): their files are the run's too.
+/// filesystem): their files are the run's too. Each log's segments follow its own file, in
+/// order, so its messages are read in the order they were logged.
 pub fn mcap_files(path: &Path) -> Result<Vec<PathBuf>> {
     if path.is_file() {
         return Ok(vec![path.to_path_buf()]);
@@ -114,7 +115,15 @@ pub fn mcap_files(path: &Path) -> Result<Vec<PathBuf>> {
             files.extend(files_with_extension(dir, "mcap").unwrap_or_default());
         }
     }
-    Ok(files)
+    let later: HashSet<PathBuf> = files
+        .iter()
+        .flat_map(|file| mcaplog::segments(file).into_iter().skip(1))
+        .collect();
+    Ok(files
+        .iter()
+        .filter(|file| !later.contains(*file))
+        .flat_map(|file| mcaplog::segments(file))
+        .collect())
 }
 
 /// The JSON messages on `topic` decoded as `T`; an error names the file and the topic.
@@ -200,7 +209,7 @@ impl Run {
                     .collect(),
             });
         }
-        let with_pictures: std::collections::HashSet<(u32, u32, u64)> = run
+        let with_pictures: HashSet<(u32, u32, u64)> = run
             .steps
             .iter()
             .filter(|(_, s)| s.pictures_ns.is_some())

@@ -25,10 +25,10 @@ pub use foxglove::{
     SceneUpdate, Vector3, timestamp,
 };
 pub use read::{
-    ChannelSummary, FileSummary, json_messages, proto_messages, read_summary, recover,
-    timed_json_messages,
+    ChannelSummary, FileSummary, json_messages, newest_json_message, proto_messages, read_summary,
+    recover, timed_json_messages,
 };
-pub use write::{Options, RunLog};
+pub use write::{Options, RunLog, segment_path, segments};
 
 use std::path::PathBuf;
 

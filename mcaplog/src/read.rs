@@ -12,7 +12,7 @@ use mcap::sans_io::{
     SummaryReaderOptions,
 };
 
-use crate::{Error, Result};
+use crate::{Error, Result, segments};
 
 /// One channel of a file.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -204,6 +204,21 @@ pub fn timed_json_messages(
     topic_messages(path.as_ref(), topic, "json", |data| {
         serde_json::from_slice(data).map_err(|e| format!("a message is not JSON: {e}"))
     })
+}
+
+/// The newest JSON message on `topic` of the log at `log`, its segments ([`segments`]) read
+/// newest first; `None` when no file of it has one. A file still being written is read as
+/// far as its complete chunks go.
+pub fn newest_json_message(
+    log: impl AsRef<Path>,
+    topic: &str,
+) -> Result<Option<serde_json::Value>> {
+    for file in segments(log.as_ref()).iter().rev() {
+        if let Some(newest) = json_messages(file, topic)?.pop() {
+            return Ok(Some(newest));
+        }
+    }
+    Ok(None)
 }
 
 /// Every protobuf message on `topic` (e.g. a `foxglove.RawImage`), decoded as `M`, with its

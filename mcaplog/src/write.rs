@@ -28,6 +28,12 @@ pub struct Options {
     pub flush_interval: Option<Duration>,
     /// zstd level of the chunks; 0 is zstd's default (3).
     pub zstd_level: u32,
+    /// After this long the log goes on in a new file, its next segment (`<stem>.1.mcap`,
+    /// `<stem>.2.mcap`, ...: [`segment_path`]), each file complete in itself (default an
+    /// hour; `None`: one file). The writer holds every chunk's index until its file ends, a
+    /// few hundred bytes a chunk, a chunk a second: without segments a process logging for
+    /// days would hold tens of MB of them.
+    pub segment_every: Option<Duration>,
 }
 
 impl Default for Options {
@@ -36,6 +42,7 @@ impl Default for Options {
             chunk_size: 1 << 20,
             flush_interval: Some(Duration::from_secs(1)),
             zstd_level: 0,
+            segment_every: Some(Duration::from_secs(3600)),
         }
     }
 }
@@ -78,11 +85,21 @@ struct Topic {
     channel: u16,
     sequence: u32,
     kind: Kind,
+    /// Its declared JSON schema (name, schema), which every later segment declares again.
+    json_schema: Option<(String, String)>,
 }
 
 struct State {
     /// `None` once finished.
     writer: Option<McapWriter>,
+    /// The file being written: the log's own path, then each later segment's.
+    path: PathBuf,
+    options: Options,
+    /// The segment being written (0: the log's own path), and when it ends.
+    segment: u32,
+    segment_ends: Option<Instant>,
+    /// Every metadata record written, which every later segment repeats.
+    metadata: Vec<Metadata>,
     /// Why the background flush failed; every later call reports it.
     failure: Option<String>,
     topics: HashMap<String, Topic>,
@@ -117,42 +134,34 @@ impl RunLog {
         Self::create_with(path, process, Options::default())
     }
 
-    /// [`RunLog::create`] with other [`Options`].
+    /// [`RunLog::create`] with other [`Options`]. Segments a log of this name left behind
+    /// are removed: they are not this log's.
     pub fn create_with(path: impl AsRef<Path>, process: &str, options: Options) -> Result<RunLog> {
         let path = path.as_ref().to_path_buf();
-        let io_err = |source| Error::Io {
-            path: path.clone(),
-            source,
-        };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(io_err)?;
-        }
-        let file = File::create(&path).map_err(io_err)?;
-        let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(options.zstd_level)
-            // One thread per process: the roles need the cores more than the log does.
-            .compression_threads(0)
-            .chunk_size(Some(options.chunk_size))
-            // Keep the open chunk in memory and write it whole when it closes: the file then
-            // only ever ends in a partial record while that one write is under way.
-            .disable_seeking(true)
-            .library(format!(
-                "pushgrasp-mcaplog/{} {}",
-                env!("CARGO_PKG_VERSION"),
-                mcap::LIBRARY_IDENTIFIER
-            ))
-            .create(BufWriter::new(file))
-            .map_err(|source| Error::Mcap {
+            std::fs::create_dir_all(dir).map_err(|source| Error::Io {
                 path: path.clone(),
                 source,
             })?;
+        }
+        let stale = (1..).map(|number| segment_path(&path, number));
+        for stale in stale.take_while(|segment| segment.exists()) {
+            std::fs::remove_file(&stale).map_err(|source| Error::Io {
+                path: stale.clone(),
+                source,
+            })?;
+        }
         let shared = Arc::new(Shared {
-            path,
+            path: path.clone(),
             enabled: true,
             flush_interval: options.flush_interval,
             state: Mutex::new(State {
-                writer: Some(writer),
+                writer: Some(open_writer(&path, &options)?),
+                segment: 0,
+                segment_ends: options.segment_every.map(|every| Instant::now() + every),
+                path,
+                options: options.clone(),
+                metadata: Vec::new(),
                 failure: None,
                 topics: HashMap::new(),
                 proto_schemas: HashMap::new(),
@@ -187,6 +196,11 @@ impl RunLog {
                 flush_interval: None,
                 state: Mutex::new(State {
                     writer: None,
+                    path: PathBuf::new(),
+                    options: Options::default(),
+                    segment: 0,
+                    segment_ends: None,
+                    metadata: Vec::new(),
                     failure: None,
                     topics: HashMap::new(),
                     proto_schemas: HashMap::new(),
@@ -224,12 +238,9 @@ impl RunLog {
             name: name.to_string(),
             metadata: values.clone(),
         };
-        let path = &self.shared.path;
-        state
-            .writer(path)?
-            .write_metadata(&record)
-            .map_err(|e| mcap_err(path, e))?;
-        state.flush(path)
+        state.write_metadata(&record)?;
+        state.metadata.push(record);
+        state.flush()
     }
 
     /// Declares a JSON topic with its own JSON schema (`schema`, a JSON Schema document, under
@@ -255,7 +266,8 @@ impl RunLog {
                 "already has a channel: declare its schema before its first message".into(),
             ));
         }
-        state.add_channel(path, topic, Kind::Json, Some((schema_name, schema)))?;
+        let declared = (schema_name.to_string(), schema.to_string());
+        state.add_channel(topic, Kind::Json, Some(declared))?;
         Ok(())
     }
 
@@ -414,7 +426,7 @@ impl RunLog {
         if !self.enabled() {
             return Ok(());
         }
-        self.shared.lock().flush(&self.shared.path)
+        self.shared.lock().flush()
     }
 
     /// Flushes if the oldest unwritten message is older than the flush interval. Every write
@@ -424,9 +436,7 @@ impl RunLog {
             return Ok(());
         }
         let interval = self.shared.flush_interval;
-        self.shared
-            .lock()
-            .flush_if_due(&self.shared.path, interval, Duration::ZERO)
+        self.shared.lock().flush_if_due(interval, Duration::ZERO)
     }
 
     /// Writes the last chunk and the summary (counts, indexes), and closes the file.
@@ -442,54 +452,47 @@ impl RunLog {
             drop(stop);
             let _ = thread.join();
         }
-        let path = &self.shared.path;
-        let mut state = self.shared.lock();
-        state.writer(path)?;
-        let Some(mut writer) = state.writer.take() else {
-            return Ok(());
-        };
-        writer.finish().map_err(|e| mcap_err(path, e))?;
-        writer.into_inner().flush().map_err(|source| Error::Io {
-            path: path.clone(),
-            source,
-        })
+        self.shared.lock().finish_file()
     }
 
     fn write(&self, topic: &str, kind: Kind, time_ns: u64, data: &[u8]) -> Result<()> {
-        let path = &self.shared.path;
         let mut state = self.shared.lock();
         let state = &mut *state;
-        state.writer(path)?;
+        state.writer()?;
+        if state
+            .segment_ends
+            .is_some_and(|ends| Instant::now() >= ends)
+        {
+            state.next_segment(&self.shared.path)?;
+        }
         let topic_entry = match state.topics.get_mut(topic) {
             Some(t) => t,
-            None => state.add_channel(path, topic, kind, None)?,
+            None => state.add_channel(topic, kind, None)?,
         };
-        if topic_entry.kind != kind {
+        let (carries, channel_id, sequence) =
+            (topic_entry.kind, topic_entry.channel, topic_entry.sequence);
+        if carries != kind {
             return Err(topic_err(
-                path,
+                &state.path,
                 topic,
-                format!(
-                    "carries {}, not {}",
-                    topic_entry.kind.describe(),
-                    kind.describe()
-                ),
+                format!("carries {}, not {}", carries.describe(), kind.describe()),
             ));
         }
+        topic_entry.sequence = sequence.wrapping_add(1);
         let header = MessageHeader {
-            channel_id: topic_entry.channel,
-            sequence: topic_entry.sequence,
+            channel_id,
+            sequence,
             log_time: time_ns,
             publish_time: time_ns,
         };
-        topic_entry.sequence = topic_entry.sequence.wrapping_add(1);
         state
             .writer
             .as_mut()
             .expect("checked above")
             .write_to_known_channel(&header, data)
-            .map_err(|e| mcap_err(path, e))?;
+            .map_err(|e| mcap_err(&state.path, e))?;
         state.oldest_unflushed.get_or_insert_with(Instant::now);
-        state.flush_if_due(path, self.shared.flush_interval, Duration::ZERO)
+        state.flush_if_due(self.shared.flush_interval, Duration::ZERO)
     }
 }
 
@@ -507,28 +510,27 @@ impl Shared {
 }
 
 impl State {
-    fn writer(&mut self, path: &Path) -> Result<&mut McapWriter> {
+    fn writer(&mut self) -> Result<&mut McapWriter> {
         if let Some(reason) = &self.failure {
             return Err(Error::Failed {
-                path: path.to_path_buf(),
+                path: self.path.clone(),
                 reason: reason.clone(),
             });
         }
         self.writer.as_mut().ok_or_else(|| Error::Failed {
-            path: path.to_path_buf(),
+            path: self.path.clone(),
             reason: "the log is finished".into(),
         })
     }
 
     fn add_channel(
         &mut self,
-        path: &Path,
         topic: &str,
         kind: Kind,
-        json_schema: Option<(&str, &str)>,
+        json_schema: Option<(String, String)>,
     ) -> Result<&mut Topic> {
-        self.writer(path)?;
-        let writer = self.writer.as_mut().expect("checked above");
+        self.writer()?;
+        let (path, writer) = (&self.path, self.writer.as_mut().expect("checked above"));
         let (schema_id, encoding) = match kind.proto_schema() {
             Some(proto) => {
                 let id = match self.proto_schemas.get(&kind) {
@@ -545,8 +547,8 @@ impl State {
             }
             None => {
                 let default_schema;
-                let (name, schema) = match json_schema {
-                    Some(declared) => declared,
+                let (name, schema) = match &json_schema {
+                    Some((name, schema)) => (name.as_str(), schema.as_str()),
                     None => {
                         default_schema =
                             serde_json::json!({"title": topic, "type": "object"}).to_string();
@@ -562,33 +564,120 @@ impl State {
         let channel = writer
             .add_channel(schema_id, topic, encoding, &BTreeMap::new())
             .map_err(|e| mcap_err(path, e))?;
-        Ok(self.topics.entry(topic.to_string()).or_insert(Topic {
+        let entry = Topic {
             channel,
             sequence: 0,
             kind,
-        }))
+            json_schema,
+        };
+        self.topics.insert(topic.to_string(), entry);
+        Ok(self.topics.get_mut(topic).expect("just inserted"))
     }
 
-    fn flush(&mut self, path: &Path) -> Result<()> {
-        self.writer(path)?.flush().map_err(|e| mcap_err(path, e))?;
+    fn write_metadata(&mut self, record: &Metadata) -> Result<()> {
+        self.writer()?
+            .write_metadata(record)
+            .map_err(|e| mcap_err(&self.path, e))
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        self.writer()?
+            .flush()
+            .map_err(|e| mcap_err(&self.path, e))?;
         self.oldest_unflushed = None;
         Ok(())
     }
 
     /// Flushes when the oldest unwritten message will be `interval` old within `ahead`.
-    fn flush_if_due(
-        &mut self,
-        path: &Path,
-        interval: Option<Duration>,
-        ahead: Duration,
-    ) -> Result<()> {
+    fn flush_if_due(&mut self, interval: Option<Duration>, ahead: Duration) -> Result<()> {
         match (interval, self.oldest_unflushed) {
-            (Some(interval), Some(oldest)) if oldest.elapsed() + ahead >= interval => {
-                self.flush(path)
-            }
+            (Some(interval), Some(oldest)) if oldest.elapsed() + ahead >= interval => self.flush(),
             _ => Ok(()),
         }
     }
+
+    /// Writes the last chunk and the summary (counts, indexes) of the file being written, and
+    /// closes it.
+    fn finish_file(&mut self) -> Result<()> {
+        self.writer()?;
+        let Some(mut writer) = self.writer.take() else {
+            return Ok(());
+        };
+        writer.finish().map_err(|e| mcap_err(&self.path, e))?;
+        writer.into_inner().flush().map_err(|source| Error::Io {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    /// Ends the file being written and goes on in the next segment, which declares again
+    /// every topic (its messages' sequence numbers going on) and every metadata record.
+    fn next_segment(&mut self, log: &Path) -> Result<()> {
+        self.finish_file()?;
+        self.oldest_unflushed = None;
+        self.segment += 1;
+        self.path = segment_path(log, self.segment);
+        self.writer = Some(open_writer(&self.path, &self.options)?);
+        self.segment_ends = self
+            .options
+            .segment_every
+            .map(|every| Instant::now() + every);
+        for record in std::mem::take(&mut self.metadata) {
+            self.write_metadata(&record)?;
+            self.metadata.push(record);
+        }
+        self.proto_schemas.clear();
+        let mut topics: Vec<(String, Topic)> =
+            std::mem::take(&mut self.topics).into_iter().collect();
+        topics.sort_by_key(|(_, topic)| topic.channel);
+        for (name, topic) in topics {
+            self.add_channel(&name, topic.kind, topic.json_schema)?
+                .sequence = topic.sequence;
+        }
+        Ok(())
+    }
+}
+
+/// A new MCAP file at `path` written the log's way.
+fn open_writer(path: &Path, options: &Options) -> Result<McapWriter> {
+    let file = File::create(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .compression_level(options.zstd_level)
+        // One thread per process: the roles need the cores more than the log does.
+        .compression_threads(0)
+        .chunk_size(Some(options.chunk_size))
+        // Keep the open chunk in memory and write it whole when it closes: the file then
+        // only ever ends in a partial record while that one write is under way.
+        .disable_seeking(true)
+        .library(format!(
+            "pushgrasp-mcaplog/{} {}",
+            env!("CARGO_PKG_VERSION"),
+            mcap::LIBRARY_IDENTIFIER
+        ))
+        .create(BufWriter::new(file))
+        .map_err(|e| mcap_err(path, e))
+}
+
+/// The file of a log's segment `number`: the log's own path for 0, else `<stem>.<number>.mcap`
+/// beside it.
+pub fn segment_path(log: &Path, number: u32) -> PathBuf {
+    if number == 0 {
+        return log.to_path_buf();
+    }
+    let stem = log.file_stem().unwrap_or_default().to_string_lossy();
+    log.with_file_name(format!("{stem}.{number}.mcap"))
+}
+
+/// The files of the log at `log` that exist, in order: the log's own, then its segments.
+pub fn segments(log: &Path) -> Vec<PathBuf> {
+    (0..)
+        .map(|number| segment_path(log, number))
+        .take_while(|path| path.exists())
+        .collect()
 }
 
 /// The background thread that closes chunks in time when the process logs nothing more. It
@@ -609,7 +698,7 @@ fn spawn_flusher(
                     return;
                 }
                 // Flush one tick early: the next check would come too late.
-                if let Err(e) = state.flush_if_due(&shared.path, Some(interval), tick) {
+                if let Err(e) = state.flush_if_due(Some(interval), tick) {
                     state.failure = Some(e.to_string());
                     return;
                 }

@@ -2,8 +2,10 @@
 
 mod common;
 
+use std::time::Duration;
+
 use common::*;
-use mcaplog::{Error, LogLevel, RunLog, read_summary, recover};
+use mcaplog::{Error, LogLevel, Options, RunLog, read_summary, recover};
 
 #[test]
 fn a_finished_file_reads_back_from_its_summary() {
@@ -250,4 +252,63 @@ fn the_background_flush_writes_an_idle_log_within_the_interval() {
     assert_eq!(summary.messages_on("/status"), 1);
     drop(log);
     assert!(!read_summary(&path).unwrap().recovered);
+}
+
+#[test]
+fn a_long_log_goes_on_in_segments_each_a_whole_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("actor-0.mcap");
+    let options = Options {
+        segment_every: Some(Duration::from_millis(100)),
+        ..manual_flush()
+    };
+    let log = RunLog::create_with(&path, "tester", options).unwrap();
+    log.json_schema(EPISODES, "pushgrasp.Episode", r#"{"type":"object"}"#)
+        .unwrap();
+    log.metadata("config", &config()).unwrap();
+    for k in 0..4 {
+        write_batch(&log, k);
+        std::thread::sleep(Duration::from_millis(120));
+    }
+    log.finish().unwrap();
+
+    // Each batch came after its segment's time was up: four files at least.
+    let files = mcaplog::segments(&path);
+    assert!(files.len() >= 4, "{files:?}");
+    assert_eq!(files[1], dir.path().join("actor-0.1.mcap"));
+    let mut episodes = Vec::new();
+    let mut sequences = Vec::new();
+    for file in &files {
+        let summary = read_summary(file).unwrap();
+        assert!(!summary.recovered && summary.damage.is_empty(), "{summary}");
+        assert_eq!(
+            summary.metadata(mcaplog::PROCESS_METADATA).unwrap()["name"],
+            "tester"
+        );
+        assert_eq!(summary.metadata("config"), Some(&config()));
+        for channel in summary.channels.iter().filter(|c| c.topic == EPISODES) {
+            assert_eq!(channel.schema_name, "pushgrasp.Episode", "{summary}");
+        }
+        for episode in mcaplog::json_messages(file, EPISODES).unwrap() {
+            episodes.push(episode["episode"].as_u64().unwrap());
+        }
+        let bytes = std::fs::read(file).unwrap();
+        for message in mcap::MessageStream::new(&bytes).unwrap() {
+            let message = message.unwrap();
+            if message.channel.topic == EPISODES {
+                sequences.push(u64::from(message.sequence));
+            }
+        }
+    }
+    // Every message once, in order, its topic's sequence numbers going on across files.
+    assert_eq!(episodes, (0..40).collect::<Vec<_>>());
+    assert_eq!(sequences, episodes);
+    let newest = mcaplog::newest_json_message(&path, EPISODES)
+        .unwrap()
+        .unwrap();
+    assert_eq!(newest["episode"], 39);
+
+    // A new log of the same name is not followed by the old one's segments.
+    RunLog::create(&path, "tester").unwrap().finish().unwrap();
+    assert_eq!(mcaplog::segments(&path), vec![path.clone()]);
 }

@@ -111,6 +111,10 @@ pub struct LoggingConfig {
     /// An actor logs what it saw (colour, height, grasp and push Q, the scene) at every step
     /// of every this many episodes (0: never).
     pub image_every: u64,
+    /// A process's log goes on in a new file (`<role>.1.mcap`, `<role>.2.mcap`, ...) every
+    /// this many minutes (0: one file), which bounds both each file and the index its writer
+    /// holds in memory until the file ends.
+    pub segment_minutes: f64,
 }
 
 impl Default for LoggingConfig {
@@ -118,6 +122,7 @@ impl Default for LoggingConfig {
         Self {
             enabled: true,
             image_every: 10,
+            segment_minutes: 60.0,
         }
     }
 }
@@ -260,6 +265,10 @@ impl RunConfig {
         }
         if self.envs_per_actor == 0 {
             bail!("envs_per_actor: must be at least 1");
+        }
+        let segment = self.logging.segment_minutes;
+        if !(segment.is_finite() && segment >= 0.0) {
+            bail!("logging.segment_minutes: {segment} is not 0 (one file) or a number of minutes");
         }
         if self.actors == 0 && self.run.remote_actors == 0 {
             bail!("actors: must be at least 1 (0 only with run.remote_actors on joined hosts)");

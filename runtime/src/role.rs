@@ -171,7 +171,12 @@ pub fn open_log(dir: &RunDir, name: &str, config: &RunConfig) -> Result<RunLog> 
     if !config.logging.enabled {
         return Ok(RunLog::disabled(name));
     }
-    let log = RunLog::create(dir.mcap(name), name)?;
+    let minutes = config.logging.segment_minutes;
+    let options = mcaplog::Options {
+        segment_every: (minutes > 0.0).then(|| Duration::from_secs_f64(minutes * 60.0)),
+        ..mcaplog::Options::default()
+    };
+    let log = RunLog::create_with(dir.mcap(name), name, options)?;
     let config = BTreeMap::from([("toml".to_string(), toml::to_string(config)?)]);
     log.metadata("config", &config)?;
     Ok(log)

@@ -350,9 +350,7 @@ impl SweepDir {
     /// (`curve.csv` is only written at snapshots). `None` without an MCAP log.
     pub fn live_episodes(&self, id: &str) -> Option<u64> {
         let log = self.run_dir(id).mcap("launcher");
-        let last = mcaplog::json_messages(&log, LAUNCHER_PROGRESS)
-            .ok()?
-            .pop()?;
+        let last = mcaplog::newest_json_message(&log, LAUNCHER_PROGRESS).ok()??;
         serde_json::from_value::<Progress>(last)
             .ok()
             .map(|progress| progress.episodes)
