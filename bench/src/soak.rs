@@ -1,15 +1,16 @@
 //! `pushgrasp bench soak`: memory over a long run. A real `train` run (processes over
 //! shared memory) goes on until its replay is full, then `--minutes` more, while every
 //! process's resident memory is sampled; each one's growth over the last three quarters of
-//! that time (15 of the default 20 minutes) is printed beside the bound a long run must keep
-//! (5%). Resident memory is split as the kernel counts it: the process's own (anonymous:
-//! its heap, where a leak shows), pages of files it maps (its program's code, paged in as
-//! new paths run) and shared memory it has touched (the topics' segments, bounded by their
-//! sizes). End against start does not tell a plateau from a ratchet, so each process's
-//! slope over the last third of the window is printed too, and whether it still grows. Each
-//! process's own log of its live bytes (what the program holds allocated) gives the same
-//! figures of those: live bytes that stay level under a resident rise are the allocator's
-//! keep, not the program's data.
+//! that time (15 of the default 20 minutes; each end the median of its tenth of that
+//! window, so that a transient peak is not read as growth) is printed beside the bound a
+//! long run must keep (5%). Resident memory is split as the kernel counts it: the process's
+//! own (anonymous: its heap, where a leak shows), pages of files it maps (its program's code,
+//! paged in as new paths run) and shared memory it has touched (the topics' segments,
+//! bounded by their sizes). End against start does not tell a plateau from a ratchet, so
+//! each process's slope over the last third of the window is printed too, and whether it
+//! still grows. Each process's own log of its live bytes (what the program holds allocated)
+//! gives the same figures of those: live bytes that stay level under a resident rise are
+//! the allocator's keep, not the program's data.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -197,91 +198,87 @@ fn write_series(
     std::fs::write(path, rows.join("\n")).with_context(|| format!("writing {}", path.display()))
 }
 
-/// Each process's memory at the start of the measured window (the first sample from
-/// `from`) and at the end, by kind, its growth, and the largest growth (resident, and
-/// anonymous) beside the bound; and the same of its live bytes (`live`, seconds and MB, as
-/// it logged them; each end the median of its tenth of the window), which tell data it keeps
-/// from freed memory its allocator keeps.
+/// Each process's memory at the start and at the end of the measured window (from `from` to
+/// the last sample), by kind: resident (`rss`) and its anonymous, file and shared parts, and
+/// the live bytes it logged itself (`live`, seconds and MB), which tell data it keeps from
+/// freed memory its allocator keeps. Memory swings within a step (a learner's by tens of MB,
+/// an actor's by a few), so each end is the median of its tenth of the window, and a single
+/// sample at a peak is not read as growth. Then the growth, the slope over the last third
+/// and whether it still grows, and the largest growth of each kind beside the bound.
 fn growth(
     samples: &[(Duration, BTreeMap<String, Memory>)],
     live: &BTreeMap<String, Vec<(f64, f64)>>,
     from: Duration,
     full: bool,
 ) -> Map<String, Value> {
-    let window: Vec<&BTreeMap<String, Memory>> = samples
-        .iter()
-        .filter(|(at, _)| *at >= from)
-        .map(|(_, rss)| rss)
-        .collect();
     let mut figures = Map::new();
     figures.insert("replay_full".into(), full.into());
-    let (mut most, mut most_anon, mut most_live) =
-        (f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
-    let pct = |begin: f64, end: f64| (end - begin) / begin * 100.0;
-    // A role logs its memory once more as it ends, its state dropped: not the run's.
-    let until_s = samples.last().map_or(0.0, |(at, _)| at.as_secs_f64());
-    if let (Some(first), Some(last)) = (window.first(), window.last()) {
-        for (process, end) in last.iter() {
-            // A process started during the window (a restarted role) has no start figure.
-            let Some(begin) = first.get(process).filter(|m| m.rss > 0.0) else {
+    let window: Vec<(f64, &BTreeMap<String, Memory>)> = samples
+        .iter()
+        .filter(|(at, _)| *at >= from)
+        .map(|(at, memory)| (at.as_secs_f64(), memory))
+        .collect();
+    let (Some(&(first_s, first)), Some(&(last_s, last))) = (window.first(), window.last()) else {
+        return figures;
+    };
+    let mut most: BTreeMap<&str, f64> = BTreeMap::new();
+    for process in last.keys() {
+        // A process started during the window (a restarted role) has no start figure.
+        if first.get(process).is_none_or(|m| m.rss <= 0.0) {
+            continue;
+        }
+        let sampled = |kind: fn(&Memory) -> f64| -> Vec<(f64, f64)> {
+            window
+                .iter()
+                .filter_map(|(at_s, memory)| Some((*at_s, kind(memory.get(process)?))))
+                .collect()
+        };
+        // A role logs its memory once more as it ends, its state dropped: not the run's.
+        let logged: Vec<(f64, f64)> = live
+            .get(process)
+            .into_iter()
+            .flatten()
+            .copied()
+            .filter(|&(at_s, _)| (first_s..=last_s).contains(&at_s))
+            .collect();
+        let kinds = [
+            ("rss", sampled(|m| m.rss)),
+            ("anon", sampled(|m| m.anon)),
+            ("file", sampled(|m| m.file)),
+            ("shmem", sampled(|m| m.shmem)),
+            ("live", logged),
+        ];
+        for (kind, series) in kinds {
+            let tenth = series.len().div_ceil(10);
+            let (Some(begin), Some(end)) = (
+                median(series.iter().take(tenth).map(|p| p.1)),
+                median(series.iter().rev().take(tenth).map(|p| p.1)),
+            ) else {
                 continue;
             };
-            most = most.max(pct(begin.rss, end.rss));
-            most_anon = most_anon.max(pct(begin.anon, end.anon));
-            figures.insert(
-                format!("rss_growth_pct_{process}"),
-                round(pct(begin.rss, end.rss)),
-            );
-            figures.insert(
-                format!("anon_growth_pct_{process}"),
-                round(pct(begin.anon, end.anon)),
-            );
-            let kinds = [
-                ("rss", begin.rss, end.rss),
-                ("anon", begin.anon, end.anon),
-                ("file", begin.file, end.file),
-                ("shmem", begin.shmem, end.shmem),
-            ];
-            for (kind, begin, end) in kinds {
-                figures.insert(format!("{kind}_mb_{process}_start"), round(begin));
-                figures.insert(format!("{kind}_mb_{process}_end"), round(end));
+            figures.insert(format!("{kind}_mb_{process}_start"), round(begin));
+            figures.insert(format!("{kind}_mb_{process}_end"), round(end));
+            if matches!(kind, "file" | "shmem") {
+                continue;
             }
-            let series: Vec<(f64, f64)> = samples
-                .iter()
-                .filter(|(at, _)| *at >= from)
-                .filter_map(|(at, rss)| Some((at.as_secs_f64(), rss.get(process)?.rss)))
-                .collect();
+            let pct = (end - begin) / begin * 100.0;
+            let largest = most.entry(kind).or_insert(f64::NEG_INFINITY);
+            *largest = largest.max(pct);
+            figures.insert(format!("{kind}_growth_pct_{process}"), round(pct));
+            if kind == "anon" {
+                continue;
+            }
             let (per_h, grows) = last_third(&series);
-            figures.insert(format!("rss_mb_per_h_last_third_{process}"), round(per_h));
-            figures.insert(format!("still_grows_{process}"), grows.into());
-            let live: Vec<(f64, f64)> = live
-                .get(process)
-                .into_iter()
-                .flatten()
-                .copied()
-                .filter(|&(at_s, _)| at_s >= from.as_secs_f64() && at_s <= until_s)
-                .collect();
-            // Live bytes swing within a step (a learner's by tens of MB): each end is the
-            // median of its tenth of the window.
-            let tenth = live.len().div_ceil(10);
-            if let (Some(begin), Some(end)) = (
-                median(live.iter().take(tenth).map(|p| p.1)),
-                median(live.iter().rev().take(tenth).map(|p| p.1)),
-            ) {
-                most_live = most_live.max(pct(begin, end));
-                figures.insert(format!("live_mb_{process}_start"), round(begin));
-                figures.insert(format!("live_mb_{process}_end"), round(end));
-                figures.insert(format!("live_growth_pct_{process}"), round(pct(begin, end)));
-                let (per_h, grows) = last_third(&live);
-                figures.insert(format!("live_mb_per_h_last_third_{process}"), round(per_h));
-                figures.insert(format!("live_still_grows_{process}"), grows.into());
-            }
+            let prefix = if kind == "live" { "live_" } else { "" };
+            figures.insert(
+                format!("{kind}_mb_per_h_last_third_{process}"),
+                round(per_h),
+            );
+            figures.insert(format!("{prefix}still_grows_{process}"), grows.into());
         }
     }
-    figures.insert("rss_growth_pct_max".into(), round(most));
-    figures.insert("anon_growth_pct_max".into(), round(most_anon));
-    if most_live.is_finite() {
-        figures.insert("live_growth_pct_max".into(), round(most_live));
+    for (kind, largest) in most {
+        figures.insert(format!("{kind}_growth_pct_max"), round(largest));
     }
     figures.insert("rss_growth_pct_bound".into(), BOUND_PCT.into());
     figures
@@ -371,6 +368,47 @@ mod tests {
                 (t, 100.0 + early + then(t))
             })
             .collect()
+    }
+
+    /// 15 minutes of one actor's memory, sampled every 10 s, resident `rss(i)` at sample i;
+    /// its live bytes steady at 16 MB.
+    fn soak(rss: impl Fn(u64) -> f64) -> Map<String, Value> {
+        let process = "actor-0-0".to_string();
+        let samples: Vec<(Duration, BTreeMap<String, Memory>)> = (0..=90)
+            .map(|i| {
+                let memory = Memory {
+                    rss: rss(i),
+                    anon: rss(i) - 20.0,
+                    file: 15.0,
+                    shmem: 2.0,
+                };
+                (
+                    Duration::from_secs(i * 10),
+                    BTreeMap::from([(process.clone(), memory)]),
+                )
+            })
+            .collect();
+        let live = (0..=90).map(|i| (i as f64 * 10.0, 16.0)).collect();
+        growth(
+            &samples,
+            &BTreeMap::from([(process, live)]),
+            Duration::ZERO,
+            true,
+        )
+    }
+
+    #[test]
+    fn a_peak_is_not_growth_and_a_step_is() {
+        // One sample at a transient peak, at the very end.
+        let peak = soak(|i| if i == 90 { 46.0 } else { 42.0 });
+        assert_eq!(peak["rss_growth_pct_actor-0-0"], 0.0);
+        assert_eq!(peak["live_growth_pct_max"], 0.0);
+        // 4 MB more for the last fifth of the window: grown, by 9.5%.
+        let step = soak(|i| if i >= 72 { 46.0 } else { 42.0 });
+        let pct = step["rss_growth_pct_actor-0-0"].as_f64().unwrap();
+        assert!((pct - 9.52).abs() < 0.01, "{pct}");
+        assert_eq!(step["rss_growth_pct_max"], step["rss_growth_pct_actor-0-0"]);
+        assert_eq!(step["anon_mb_actor-0-0_end"], 26.0);
     }
 
     #[test]
