@@ -348,6 +348,15 @@ print(json.dumps(counts))\n";
     Some(serde_json::from_slice(&output.stdout).expect("counts"))
 }
 
+/// `pushgrasp inspect`'s counts from a run's logs are the run summary's.
+fn assert_logs_count_as_the_summary(report: &Value, summary: &Value) {
+    let received = u(&summary["buffer"]["steps_received"]);
+    assert_eq!(u(&report["steps_sent"]), received);
+    assert_eq!(u(&report["steps_received"]), received);
+    assert_eq!(report["episodes"], summary["buffer"]["episodes"]);
+    assert_eq!(report["learner_updates"], summary["learner"]["updates"]);
+}
+
 #[test]
 fn the_logs_of_a_run_say_what_the_processes_counted() {
     let logs = logs();
@@ -358,11 +367,7 @@ fn the_logs_of_a_run_say_what_the_processes_counted() {
     let dir = logs.path().join("logged");
     let summary = summary(logs.path(), "logged");
     let report = inspect(&dir);
-    let received = u(&summary["buffer"]["steps_received"]);
-    assert_eq!(u(&report["steps_sent"]), received);
-    assert_eq!(u(&report["steps_received"]), received);
-    assert_eq!(report["episodes"], summary["buffer"]["episodes"]);
-    assert_eq!(report["learner_updates"], summary["learner"]["updates"]);
+    assert_logs_count_as_the_summary(&report, &summary);
     // The paper's metric by hand, from the buffer's curve.
     let curve = std::fs::read_to_string(dir.join("curve.csv")).unwrap();
     let grasped: Vec<bool> = curve
@@ -450,26 +455,18 @@ fn a_run_logged_in_segments_reads_back_whole() {
     let dir = logs.path().join("segmented");
     let summary = summary(logs.path(), "segmented");
     let report = inspect(&dir);
-    let received = u(&summary["buffer"]["steps_received"]);
-    assert_eq!(u(&report["steps_sent"]), received);
-    assert_eq!(u(&report["steps_received"]), received);
-    assert_eq!(report["episodes"], summary["buffer"]["episodes"]);
-    assert_eq!(report["learner_updates"], summary["learner"]["updates"]);
+    assert_logs_count_as_the_summary(&report, &summary);
     let segments = mcaplog::segments(&dir.join("launcher.mcap"));
     assert!(segments.len() > 1, "{segments:?}");
     // The summary is logged as the run ends: in the last segment, found from the first file.
     let logged = mcaplog::newest_json_message(&segments[0], LAUNCHER_SUMMARY).unwrap();
     assert_eq!(logged.unwrap()["run_id"], "segmented");
     // Each segment is a whole file, each log's segments read in order after its first.
-    let files: Vec<&str> = report["files"]
+    let launcher: Vec<&str> = report["files"]
         .as_array()
         .unwrap()
         .iter()
         .map(|file| file["file"].as_str().unwrap())
-        .collect();
-    let launcher: Vec<&str> = files
-        .iter()
-        .copied()
         .filter(|file| file.contains("launcher"))
         .collect();
     let expected: Vec<String> = segments.iter().map(|s| s.display().to_string()).collect();

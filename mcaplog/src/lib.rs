@@ -28,7 +28,7 @@ pub use read::{
     ChannelSummary, FileSummary, json_messages, newest_json_message, proto_messages, read_summary,
     recover, timed_json_messages,
 };
-pub use write::{Options, RunLog, segment_path, segments};
+pub use write::{Options, RunLog, segments};
 
 use std::path::PathBuf;
 

@@ -29,7 +29,7 @@ pub struct Options {
     /// zstd level of the chunks; 0 is zstd's default (3).
     pub zstd_level: u32,
     /// After this long the log goes on in a new file, its next segment (`<stem>.1.mcap`,
-    /// `<stem>.2.mcap`, ...: [`segment_path`]), each file complete in itself (default an
+    /// `<stem>.2.mcap`, ...: [`segments`]), each file complete in itself (default an
     /// hour; `None`: one file). The writer holds every chunk's index until its file ends, a
     /// few hundred bytes a chunk, a chunk a second: without segments a process logging for
     /// days would hold tens of MB of them.
@@ -664,7 +664,7 @@ fn open_writer(path: &Path, options: &Options) -> Result<McapWriter> {
 
 /// The file of a log's segment `number`: the log's own path for 0, else `<stem>.<number>.mcap`
 /// beside it.
-pub fn segment_path(log: &Path, number: u32) -> PathBuf {
+fn segment_path(log: &Path, number: u32) -> PathBuf {
     if number == 0 {
         return log.to_path_buf();
     }

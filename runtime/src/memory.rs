@@ -68,11 +68,17 @@ impl Default for MemorySampler {
 impl MemorySampler {
     pub fn log_if_due(&mut self, log: &RunLog) -> Result<()> {
         if Instant::now() >= self.next {
-            log.json(PROCESS_MEMORY, &MemoryRecord::of_this_process())?;
+            log_memory(log)?;
             self.next = Instant::now() + MEMORY_EVERY;
         }
         Ok(())
     }
+}
+
+/// Logs this process's memory now.
+fn log_memory(log: &RunLog) -> Result<()> {
+    log.json(PROCESS_MEMORY, &MemoryRecord::of_this_process())?;
+    Ok(())
 }
 
 /// Runs `work` while a thread beside it logs this process's memory every [`MEMORY_EVERY`],
@@ -80,17 +86,13 @@ impl MemorySampler {
 pub fn sampling_memory<T>(log: &RunLog, work: impl FnOnce() -> T) -> T {
     std::thread::scope(|scope| {
         let (done, until_done) = mpsc::channel::<()>();
+        // A log that fails is the role's to report (its own writes fail too).
         scope.spawn(move || {
-            let mut sampler = MemorySampler::default();
-            loop {
-                // A log that fails is the role's to report (its own writes fail too).
-                let _ = sampler.log_if_due(log);
-                match until_done.recv_timeout(MEMORY_EVERY) {
-                    Err(RecvTimeoutError::Timeout) => {}
-                    _ => break,
-                }
+            let _ = log_memory(log);
+            while let Err(RecvTimeoutError::Timeout) = until_done.recv_timeout(MEMORY_EVERY) {
+                let _ = log_memory(log);
             }
-            let _ = log.json(PROCESS_MEMORY, &MemoryRecord::of_this_process());
+            let _ = log_memory(log);
         });
         let result = work();
         drop(done);
