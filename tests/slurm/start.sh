@@ -56,8 +56,10 @@ cat "$state/munge/munged.pid" >"$state/pids"
 
 host=$(hostname -s)
 # slurmd -C describes this machine's hardware as slurm.conf wants it (first line only;
-# the second is its uptime).
-node=$(slurmd -C | head -n 1)
+# the second is its uptime). Cut in the shell: `| head -n 1` could end slurmd with SIGPIPE,
+# which pipefail reports as a failure.
+node=$(slurmd -C)
+node=${node%%$'\n'*}
 case $node in
     NodeName=*) ;;
     *) echo "slurmd -C did not describe the node: $node" >&2; exit 1 ;;

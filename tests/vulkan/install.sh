@@ -5,8 +5,10 @@
 # the same shaders as a GPU on the CPU. Exits non-zero, saying why, when no device can be had.
 set -euo pipefail
 
+# Not `ldconfig -p | grep -q`: under pipefail, grep's early exit on the first match can kill
+# ldconfig with SIGPIPE mid-listing, and the pipeline then fails with the library present.
 has_vulkan() {
-    ldconfig -p | grep -q 'libvulkan\.so\.1' && {
+    [[ $(ldconfig -p) == *libvulkan.so.1* ]] && {
         compgen -G '/usr/share/vulkan/icd.d/*.json' >/dev/null ||
             compgen -G '/etc/vulkan/icd.d/*.json' >/dev/null
     }
