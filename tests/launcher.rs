@@ -1,10 +1,12 @@
 //! The launcher's own faults. A run killed at any moment of its start-up (or just after it
 //! finished), every process of it at once, continues with `--resume`: the shared memory its
-//! processes were creating is cleaned up, and a resumed run whose budget is already spent
-//! stops at once. A hung launcher's roles stop by themselves, saving their state.
+//! processes were creating is cleaned up, its logs go on after the killed launch's, and a
+//! resumed run whose budget is already spent stops at once. A hung launcher's roles stop by
+//! themselves, saving their state.
 
+use std::collections::BTreeMap;
 use std::os::unix::process::CommandExt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
@@ -44,6 +46,21 @@ fn roles_listed(run: &Path) -> usize {
         .and_then(|bytes| serde_json::from_slice::<Value>(&bytes).ok())
         .and_then(|entries| entries.as_array().map(Vec::len))
         .unwrap_or(0)
+}
+
+/// The run directory's MCAP files, with what each holds.
+fn mcap_files(run: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let Ok(entries) = std::fs::read_dir(run) else {
+        return BTreeMap::new();
+    };
+    entries
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.extension().is_some_and(|e| e == "mcap"))
+        .map(|path| {
+            let bytes = std::fs::read(&path).unwrap();
+            (path, bytes)
+        })
+        .collect()
 }
 
 /// What an ended run wrote to its stderr.
@@ -92,6 +109,7 @@ fn killed_then_resumed(what: &str, moment: impl Fn(&Path) -> bool) {
     wait(&mut first, Duration::from_secs(10), "the killed run");
     // Its roles, killed with it, are gone before the resume looks for them.
     std::thread::sleep(Duration::from_millis(200));
+    let logs_before = mcap_files(&run);
 
     let mut resumed = train(logs.path(), &["--resume"])
         .process_group(0)
@@ -105,6 +123,22 @@ fn killed_then_resumed(what: &str, moment: impl Fn(&Path) -> bool) {
         !stderr.contains("did not stop"),
         "{what}: a role missed its order to stop: {stderr}"
     );
+    // The resumed processes went on after the killed ones' logs, which are as they were.
+    let logs_after = mcap_files(&run);
+    for (path, bytes) in &logs_before {
+        assert!(
+            logs_after.get(path) == Some(bytes),
+            "{what}: the resume changed or removed {}",
+            path.display()
+        );
+    }
+    if logs_before.contains_key(&run.join("launcher.mcap")) {
+        assert!(
+            logs_after.contains_key(&run.join("launcher.1.mcap")),
+            "{what}: the resumed launcher's log is not the next segment: {:?}",
+            logs_after.keys()
+        );
+    }
     let summary: Value =
         serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
     assert!(

@@ -137,29 +137,49 @@ impl RunLog {
     /// [`RunLog::create`] with other [`Options`]. Segments a log of this name left behind
     /// are removed: they are not this log's.
     pub fn create_with(path: impl AsRef<Path>, process: &str, options: Options) -> Result<RunLog> {
-        let path = path.as_ref().to_path_buf();
+        let path = path.as_ref();
+        for stale in segments(path).into_iter().skip(1) {
+            std::fs::remove_file(&stale).map_err(|source| Error::Io {
+                path: stale.clone(),
+                source,
+            })?;
+        }
+        Self::open(path, 0, process, options)
+    }
+
+    /// Goes on after the log already at `path`, as a resumed run does: its files are kept, and
+    /// this process writes the log's next segment (from `<stem>.<n>.mcap`, the first number
+    /// free), so that [`segments`] reads the earlier process's messages and then this one's.
+    /// With no log at `path`, the same as [`RunLog::create_with`].
+    pub fn continue_with(
+        path: impl AsRef<Path>,
+        process: &str,
+        options: Options,
+    ) -> Result<RunLog> {
+        let path = path.as_ref();
+        let next = segments(path).len() as u32;
+        Self::open(path, next, process, options)
+    }
+
+    /// A log whose first file written is segment `segment` of the log at `path`.
+    fn open(path: &Path, segment: u32, process: &str, options: Options) -> Result<RunLog> {
+        let path = path.to_path_buf();
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|source| Error::Io {
                 path: path.clone(),
                 source,
             })?;
         }
-        let stale = (1..).map(|number| segment_path(&path, number));
-        for stale in stale.take_while(|segment| segment.exists()) {
-            std::fs::remove_file(&stale).map_err(|source| Error::Io {
-                path: stale.clone(),
-                source,
-            })?;
-        }
+        let first = segment_path(&path, segment);
         let shared = Arc::new(Shared {
             path: path.clone(),
             enabled: true,
             flush_interval: options.flush_interval,
             state: Mutex::new(State {
-                writer: Some(open_writer(&path, &options)?),
-                segment: 0,
+                writer: Some(open_writer(&first, &options)?),
+                segment,
                 segment_ends: options.segment_every.map(|every| Instant::now() + every),
-                path,
+                path: first,
                 options: options.clone(),
                 metadata: Vec::new(),
                 failure: None,
@@ -217,7 +237,8 @@ impl RunLog {
         self.shared.enabled
     }
 
-    /// The file being written (empty for a disabled log).
+    /// The log's path: its first file, with any later segments beside it (empty for a
+    /// disabled log).
     pub fn path(&self) -> &Path {
         &self.shared.path
     }

@@ -312,3 +312,51 @@ fn a_long_log_goes_on_in_segments_each_a_whole_file() {
     RunLog::create(&path, "tester").unwrap().finish().unwrap();
     assert_eq!(mcaplog::segments(&path), vec![path.clone()]);
 }
+
+#[test]
+fn a_continued_log_keeps_what_the_earlier_process_wrote_and_goes_on_after_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("launcher.mcap");
+    // The first process died mid-write: its file ends in a partial record.
+    write_file(&path, 2);
+    let cut = std::fs::metadata(&path).unwrap().len() - 100;
+    let file = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+    file.set_len(cut).unwrap();
+    let earlier = std::fs::read(&path).unwrap();
+
+    let log = RunLog::continue_with(&path, "resumed", manual_flush()).unwrap();
+    write_batch(&log, 2);
+    log.finish().unwrap();
+
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        earlier,
+        "the earlier file changed"
+    );
+    let files = mcaplog::segments(&path);
+    assert_eq!(
+        files,
+        vec![path.clone(), dir.path().join("launcher.1.mcap")]
+    );
+    let continued = read_summary(&files[1]).unwrap();
+    assert!(!continued.recovered, "{continued}");
+    assert_eq!(
+        continued.metadata(mcaplog::PROCESS_METADATA).unwrap()["name"],
+        "resumed"
+    );
+    // Every earlier message the cut left whole, then the new ones.
+    let episodes: Vec<u64> = files
+        .iter()
+        .flat_map(|file| mcaplog::json_messages(file, EPISODES).unwrap())
+        .map(|episode| episode["episode"].as_u64().unwrap())
+        .collect();
+    assert_eq!(episodes, (0..30).collect::<Vec<_>>());
+
+    // Continuing where there is no log yet starts one.
+    let fresh = dir.path().join("buffer.mcap");
+    RunLog::continue_with(&fresh, "buffer", manual_flush())
+        .unwrap()
+        .finish()
+        .unwrap();
+    assert_eq!(mcaplog::segments(&fresh), vec![fresh.clone()]);
+}

@@ -176,7 +176,9 @@ pub fn open_log(dir: &RunDir, name: &str, config: &RunConfig) -> Result<RunLog> 
         segment_every: (minutes > 0.0).then(|| Duration::from_secs_f64(minutes * 60.0)),
         ..mcaplog::Options::default()
     };
-    let log = RunLog::create_with(dir.mcap(name), name, options)?;
+    // A log of this name in the run's directory is an earlier process's of the same run (a
+    // resumed run's launcher, buffer and learner): it is kept, and this one goes on after it.
+    let log = RunLog::continue_with(dir.mcap(name), name, options)?;
     let config = BTreeMap::from([("toml".to_string(), toml::to_string(config)?)]);
     log.metadata("config", &config)?;
     Ok(log)
