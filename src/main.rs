@@ -12,10 +12,11 @@ use mimalloc::MiMalloc;
 #[global_allocator]
 static ALLOCATOR: Cap<MiMalloc> = Cap::new(MiMalloc, usize::MAX);
 
-/// Every process hands memory it freed back to the kernel at mimalloc's own pace and opts
-/// out of transparent huge pages (its children inherit that). Kept longer in the processes
-/// that run the nets (for good, then a second), each passing peak stayed, in whole 2 MB
-/// pages: over 15-minute soaks an actor and the learner grew 6-14% and were still growing.
+/// Every process hands memory it freed back to the kernel (at mimalloc's own pace, the
+/// learner later: [`LEARNER_PURGE_DELAY_MS`]) and opts out of transparent huge pages (its
+/// children inherit that). Kept longer in the processes that run the nets (for good, then
+/// a second) on huge pages, each passing peak stayed, in whole 2 MB pages: over 15-minute
+/// soaks an actor and the learner grew 6-14% and were still growing.
 /// Handed back, an actor holds about half the memory, the training step and the whole
 /// system's throughput stay within their spread, and the learner's growth is gone; one
 /// actor still grew 2.8% and 5.9% in two soaks (RESULTS.md, "Memory over a long run").
