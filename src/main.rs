@@ -88,8 +88,11 @@ const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 /// role, and `bench learner`, which measures the learner's step.
 fn purge_delay_ms(command: &Command) -> Option<std::ffi::c_long> {
     match command {
-        Command::Role(args) if args.role == wire::Role::Learner => Some(LEARNER_PURGE_DELAY_MS),
-        Command::Bench(bench::BenchCommand::Learner(_)) => Some(LEARNER_PURGE_DELAY_MS),
+        Command::Role(runtime::RoleArgs {
+            role: wire::Role::Learner,
+            ..
+        })
+        | Command::Bench(bench::BenchCommand::Learner(_)) => Some(LEARNER_PURGE_DELAY_MS),
         _ => None,
     }
 }
