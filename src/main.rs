@@ -13,7 +13,7 @@ use mimalloc::MiMalloc;
 static ALLOCATOR: Cap<MiMalloc> = Cap::new(MiMalloc, usize::MAX);
 
 /// Every process hands memory it freed back to the kernel (at mimalloc's own pace, the
-/// learner later: [`LEARNER_PURGE_DELAY_MS`]) and opts out of transparent huge pages (its
+/// learner later, an actor at once: [`purge_delay_ms`]) and opts out of transparent huge pages (its
 /// children inherit that). Kept longer in the processes that run the nets (for good, then
 /// a second) on huge pages, each passing peak stayed, in whole 2 MB pages: over 15-minute
 /// soaks an actor and the learner grew 6-14% and were still growing.
@@ -84,8 +84,14 @@ const LEARNER_PURGE_DELAY_MS: std::ffi::c_long = 10_000;
 /// `mi_option_e` (mimalloc.h, v3).
 const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 
+/// How long an actor keeps memory it freed: not at all. Its live bytes stay level (12.5-13.2
+/// MB), but at mimalloc's second its arena's resident pages wandered by a few MB between
+/// episodes, past 5% over 15-minute soaks; handed back at once, it stays level too, at the
+/// same actions per second (RESULTS.md, "The actors hand back what they free at once").
+const ACTOR_PURGE_DELAY_MS: std::ffi::c_long = 0;
+
 /// The purge delay this command's process sets, where it is not mimalloc's own: the learner
-/// role, and `bench learner`, which measures the learner's step.
+/// role, and `bench learner`, which measures the learner's step; the actor role.
 fn purge_delay_ms(command: &Command) -> Option<std::ffi::c_long> {
     match command {
         Command::Role(runtime::RoleArgs {
@@ -93,6 +99,10 @@ fn purge_delay_ms(command: &Command) -> Option<std::ffi::c_long> {
             ..
         })
         | Command::Bench(bench::BenchCommand::Learner(_)) => Some(LEARNER_PURGE_DELAY_MS),
+        Command::Role(runtime::RoleArgs {
+            role: wire::Role::Actor,
+            ..
+        }) => Some(ACTOR_PURGE_DELAY_MS),
         _ => None,
     }
 }
@@ -140,13 +150,13 @@ mod tests {
     }
 
     #[test]
-    fn only_the_learner_keeps_its_freed_memory_longer() {
+    fn the_learner_keeps_its_freed_memory_longer_and_an_actor_not_at_all() {
         let role = |role| {
             let args = ["role", role, "--run-dir", "run", "--shm-namespace", "n"];
             purge_delay_of(&[&args[..], &["--shm-processes", "4"]].concat())
         };
         assert_eq!(role("learner"), Some(LEARNER_PURGE_DELAY_MS));
-        assert_eq!(role("actor"), None);
+        assert_eq!(role("actor"), Some(ACTOR_PURGE_DELAY_MS));
         assert_eq!(role("buffer"), None);
         assert_eq!(
             purge_delay_of(&["bench", "learner"]),
