@@ -13,13 +13,11 @@ use mimalloc::MiMalloc;
 static ALLOCATOR: Cap<MiMalloc> = Cap::new(MiMalloc, usize::MAX);
 
 /// Every process hands memory it freed back to the kernel (at mimalloc's own pace, the
-/// learner later, an actor at once: [`purge_delay_ms`]) and opts out of transparent huge pages (its
-/// children inherit that). Kept longer in the processes that run the nets (for good, then
-/// a second) on huge pages, each passing peak stayed, in whole 2 MB pages: over 15-minute
-/// soaks an actor and the learner grew 6-14% and were still growing.
-/// Handed back, an actor holds about half the memory, the training step and the whole
-/// system's throughput stay within their spread, and the learner's growth is gone; one
-/// actor still grew 2.8% and 5.9% in two soaks (RESULTS.md, "Memory over a long run").
+/// learner later, an actor at once: [`purge_delay_ms`]) and opts out of transparent huge
+/// pages (its children inherit that). Kept longer in the processes that run the nets (for
+/// good, then a second) on huge pages, each passing peak stayed, in whole 2 MB pages: over
+/// 15-minute soaks an actor and the learner grew 6-14% and were still growing (RESULTS.md,
+/// "Memory over a long run").
 fn hand_back_freed_memory() {
     // SAFETY: prctl with PR_SET_THP_DISABLE reads no memory, it sets a flag of this process.
     // A refusal (an old kernel) leaves huge pages on: nothing to handle.
