@@ -3,8 +3,10 @@
 //! move every channel to the front (a transposed copy of the activation) for each of their
 //! statistics, and the ReLU then made and read another copy each way. On the CPU backend
 //! the statistics, the normalisation with its ReLU and the three gradients are plain loops
-//! over each channel's planes; elsewhere (wgpu) burn's own operations. Every batch norm of
-//! the nets is followed by a ReLU. The module keeps burn's [`BatchNorm`] (its parameters,
+//! over each channel's planes; elsewhere (wgpu) burn's own operations, composed so that each
+//! statistic is one sum over every dimension but the channels' (no transposed copy) and the
+//! rest element-wise, which burn's fusion joins into few kernels. Every batch norm of the
+//! nets is followed by a ReLU. The module keeps burn's [`BatchNorm`] (its parameters,
 //! running statistics and their update), so checkpoints and the inference path do not
 //! change.
 
@@ -14,11 +16,13 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Autodiff, Backend, Dispatch, Flex, TensorMetadata, backend_extension};
+use burn::backend::{
+    Autodiff, AutodiffBackend, Backend, Dispatch, Flex, Scalar, TensorMetadata, backend_extension,
+};
 use burn::nn::BatchNorm;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use burn::tensor::{DType, Slice};
+use burn::tensor::{DType, Shape};
 
 use rayon::prelude::*;
 
@@ -26,39 +30,41 @@ use crate::fresh::planes_from;
 use crate::gemm_conv::flex_tensor;
 
 /// The operation on a backend: inputs `[n, c, ...]`, per-channel `gamma` and `beta`, and
-/// the batch statistics `[2, c]` (mean, then biased variance) that
-/// [`NormBackend::norm_statistics`] computes once per pass.
+/// the batch's mean and biased variance per channel (`[c]` each), which
+/// [`NormBackend::norm_statistics`] computes once per pass. (Each a tensor of its own: a
+/// view into one stacked buffer cost a device a copy and a slice per use.)
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"))]
 pub trait NormBackend: Backend {
-    /// The batch mean and biased variance of each channel, `[2, c]`; no gradient.
-    fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
+    /// The batch mean and biased variance of each channel, `[c]` each; no gradient.
+    fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
         composed::statistics::<Self>(x)
     }
 
     /// `relu((x - mean) / sqrt(variance + epsilon) * gamma + beta)` with the batch's
-    /// `statistics`. Its backward differentiates through the statistics as functions of `x`.
+    /// statistics. Its backward differentiates through the statistics as functions of `x`.
     fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
-        statistics: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
-        composed::train::<Self>(x, gamma, beta, statistics, epsilon)
+        composed::train::<Self>(x, gamma, beta, mean, variance, epsilon)
     }
 
     /// The gradients of [`NormBackend::norm_relu_train`], whose `output` it was: input,
-    /// gamma and beta. (Each a tensor of its own: a view into one stacked buffer made every
-    /// consumer of the input's gradient copy it out first.)
+    /// gamma and beta. (Each a tensor of its own, as the statistics.)
     fn norm_relu_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
-        statistics: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
         epsilon: f64,
         output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
-        composed::grads::<Self>(x, gamma, statistics, epsilon, output, grad)
+        composed::grads::<Self>(x, gamma, mean, variance, epsilon, output, grad)
     }
 }
 
@@ -118,45 +124,34 @@ fn layout(x: &FloatTensor<Flex>) -> Option<[usize; 2]> {
 }
 
 impl NormBackend for Flex {
-    fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
         let Some([c, m]) = layout(&x) else {
             return composed::statistics::<Self>(x);
         };
         let x = x.to_contiguous();
         let values: &[f32] = x.storage();
-        let moments: Vec<(f32, f32)> = (0..c)
+        let (mean, variance): (Vec<f32>, Vec<f32>) = (0..c)
             .into_par_iter()
             .map(|k| moments(values, c, m, k))
-            .collect();
-        let mut out: Vec<f32> = moments.iter().map(|m| m.0).collect();
-        out.extend(moments.iter().map(|m| m.1));
-        flex_tensor(out, vec![2, c])
+            .unzip();
+        (flex_tensor(mean, vec![c]), flex_tensor(variance, vec![c]))
     }
 
     fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
-        statistics: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
         let Some([c, m]) = layout(&x) else {
-            return composed::train::<Self>(x, gamma, beta, statistics, epsilon);
+            return composed::train::<Self>(x, gamma, beta, mean, variance, epsilon);
         };
         let shape = x.shape().to_vec();
-        let (x, gamma, beta, statistics) = (
-            x.to_contiguous(),
-            gamma.to_contiguous(),
-            beta.to_contiguous(),
-            statistics.to_contiguous(),
-        );
-        let (values, gamma, beta, statistics): (&[f32], &[f32], &[f32], &[f32]) = (
-            x.storage(),
-            gamma.storage(),
-            beta.storage(),
-            statistics.storage(),
-        );
-        let (mean, variance) = statistics.split_at(c);
+        let tensors = [x, gamma, beta, mean, variance].map(|t| t.to_contiguous());
+        let [values, gamma, beta, mean, variance]: [&[f32]; 5] =
+            tensors.each_ref().map(|t| t.storage());
         let affine: Vec<(f32, f32)> = (0..c)
             .map(|k| {
                 let scale = gamma[k] / (variance[k] + epsilon as f32).sqrt();
@@ -175,26 +170,20 @@ impl NormBackend for Flex {
     fn norm_relu_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
-        statistics: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
         epsilon: f64,
         output: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         let Some([c, m]) = layout(&x) else {
-            return composed::grads::<Self>(x, gamma, statistics, epsilon, output, grad);
+            return composed::grads::<Self>(x, gamma, mean, variance, epsilon, output, grad);
         };
         let shape = x.shape().to_vec();
-        let (x, gamma, statistics, output, grad) = (
-            x.to_contiguous(),
-            gamma.to_contiguous(),
-            statistics.to_contiguous(),
-            output.to_contiguous(),
-            grad.to_contiguous(),
-        );
-        let (values, gamma, statistics): (&[f32], &[f32], &[f32]) =
-            (x.storage(), gamma.storage(), statistics.storage());
+        let tensors = [x, gamma, mean, variance, output, grad].map(|t| t.to_contiguous());
+        let [values, gamma, mean, variance, y, grad]: [&[f32]; 6] =
+            tensors.each_ref().map(|t| t.storage());
         // The gradient through the ReLU: none where it cut the value to 0.
-        let (y, grad): (&[f32], &[f32]) = (output.storage(), grad.storage());
         let mut out = planes_from(values.len(), m, |p, slots| {
             for ((slot, &y), &g) in slots.iter_mut().zip(plane(y, m, p)).zip(plane(grad, m, p)) {
                 slot.write(if y > 0.0 { g } else { 0.0 });
@@ -206,7 +195,7 @@ impl NormBackend for Flex {
         let sums: Vec<[f32; 4]> = (0..c)
             .into_par_iter()
             .map(|k| {
-                let (mean, variance) = (statistics[k], statistics[c + k]);
+                let (mean, variance) = (mean[k], variance[k]);
                 let inv_std = 1.0 / (variance + epsilon as f32).sqrt();
                 let (mut sum_dy, mut sum_dy_xhat) = (0f64, 0f64);
                 for (x, dy) in channel(values, c, m, k).zip(channel(dy, c, m, k)) {
@@ -234,64 +223,97 @@ impl NormBackend for Flex {
     }
 }
 
-/// The operation composed from burn's own (its generic batch norm), for every backend.
+/// The operation composed from burn's own, for every backend: each per-channel sum one
+/// reduction over the other dimensions, which a GPU backend runs over the activation as it
+/// lies (burn's generic `batch_norm_train` and its backward first copy it with the channels
+/// moved to the front, for each of four sums), and the rest element-wise.
 mod composed {
     use super::*;
 
-    pub fn statistics<B: Backend>(x: FloatTensor<B>) -> FloatTensor<B> {
-        let c = x.shape()[1];
-        let device = x.device();
-        let gamma = B::float_ones([c].into(), &device, x.dtype().into());
-        let beta = B::float_zeros([c].into(), &device, x.dtype().into());
-        let result = B::batch_norm_train(x, gamma, beta, 0.0);
-        B::float_cat(
-            vec![
-                B::float_reshape(result.mean, [1, c].into()),
-                B::float_reshape(result.variance, [1, c].into()),
-            ],
-            0,
-        )
+    /// Values per channel of a tensor of `shape`: its elements over its channels.
+    fn count(shape: &Shape) -> usize {
+        shape.num_elements() / shape[1]
     }
 
-    /// `[2, c]` statistics as the mean and the variance, `[c]` each.
-    pub fn split<B: Backend>(statistics: FloatTensor<B>) -> [FloatTensor<B>; 2] {
-        let c = statistics.shape()[1];
-        [0, 1].map(|i| {
-            B::float_reshape(
-                B::float_slice(
-                    statistics.clone(),
-                    &[Slice::from(i..i + 1), Slice::from(0..c)],
-                ),
-                [c].into(),
-            )
-        })
+    /// `[c]` values shaped to broadcast over `x`'s channels: `[1, c, 1, ...]`.
+    fn per_channel<B: Backend>(values: FloatTensor<B>, x: &FloatTensor<B>) -> FloatTensor<B> {
+        let mut shape = vec![1; x.shape().num_dims()];
+        shape[1] = x.shape()[1];
+        B::float_reshape(values, shape.into())
     }
 
-    /// The normalisation with the batch's `statistics` and the ReLU: burn's batch norm and
+    /// `[1, c, 1, ...]` values as `[c]`.
+    fn flat<B: Backend>(values: FloatTensor<B>) -> FloatTensor<B> {
+        let c = values.shape().num_elements();
+        B::float_reshape(values, [c].into())
+    }
+
+    /// The sum of each channel of `x`, `[1, c, 1, ...]`.
+    fn channel_sums<B: Backend>(x: FloatTensor<B>) -> FloatTensor<B> {
+        let others: Vec<usize> = (0..x.shape().num_dims()).filter(|&d| d != 1).collect();
+        B::float_sum_dims(x, &others)
+    }
+
+    /// `1 / sqrt(variance + epsilon)`, `[1, c, 1, ...]` for `x`.
+    fn inverse_std<B: Backend>(
+        variance: FloatTensor<B>,
+        epsilon: f64,
+        x: &FloatTensor<B>,
+    ) -> FloatTensor<B> {
+        let shifted = B::float_add_scalar(variance, Scalar::Float(epsilon));
+        per_channel::<B>(B::float_recip(B::float_sqrt(shifted)), x)
+    }
+
+    /// Mean, then biased variance about it (two passes, as the CPU's loops).
+    pub fn statistics<B: Backend>(x: FloatTensor<B>) -> (FloatTensor<B>, FloatTensor<B>) {
+        let n = Scalar::Float(count(&x.shape()) as f64);
+        let mean = B::float_div_scalar(channel_sums::<B>(x.clone()), n);
+        let centred = B::float_sub(x, mean.clone());
+        let variance =
+            B::float_div_scalar(channel_sums::<B>(B::float_mul(centred.clone(), centred)), n);
+        (flat::<B>(mean), flat::<B>(variance))
+    }
+
+    /// The normalisation with the batch's statistics and the ReLU: burn's batch norm and
     /// ReLU.
     pub fn train<B: Backend>(
         x: FloatTensor<B>,
         gamma: FloatTensor<B>,
         beta: FloatTensor<B>,
-        statistics: FloatTensor<B>,
+        mean: FloatTensor<B>,
+        variance: FloatTensor<B>,
         epsilon: f64,
     ) -> FloatTensor<B> {
-        let [mean, variance] = split::<B>(statistics);
         B::relu(B::batch_norm(x, gamma, beta, mean, variance, epsilon))
     }
 
+    /// With `x_hat` the normalised input and `dy` the output's gradient through the ReLU:
+    /// beta's gradient `sum(dy)`, gamma's `sum(dy x_hat)`, and the input's
+    /// `gamma / std / n (n dy - sum(dy) - x_hat sum(dy x_hat))`, per channel.
     pub fn grads<B: Backend>(
         x: FloatTensor<B>,
         gamma: FloatTensor<B>,
-        statistics: FloatTensor<B>,
+        mean: FloatTensor<B>,
+        variance: FloatTensor<B>,
         epsilon: f64,
         output: FloatTensor<B>,
         grad: FloatTensor<B>,
     ) -> (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>) {
-        let [mean, variance] = split::<B>(statistics);
-        let grad = B::relu_backward(output, grad);
-        let grads = B::batch_norm_train_backward(x, gamma, mean, variance, epsilon, grad);
-        (grads.x_grad, grads.gamma_grad, grads.beta_grad)
+        let n = count(&x.shape()) as f64;
+        let inv_std = inverse_std::<B>(variance, epsilon, &x);
+        let mean = per_channel::<B>(mean, &x);
+        let gamma = per_channel::<B>(gamma, &x);
+        let dy = B::relu_backward(output, grad);
+        let x_hat = B::float_mul(B::float_sub(x, mean), inv_std.clone());
+        let sum_dy = channel_sums::<B>(dy.clone());
+        let sum_dy_x_hat = channel_sums::<B>(B::float_mul(dy.clone(), x_hat.clone()));
+        let factor = B::float_div_scalar(B::float_mul(gamma, inv_std), Scalar::Float(n));
+        let inner = B::float_sub(
+            B::float_sub(B::float_mul_scalar(dy, Scalar::Float(n)), sum_dy.clone()),
+            B::float_mul(x_hat, sum_dy_x_hat.clone()),
+        );
+        let x_grad = B::float_mul(factor, inner);
+        (x_grad, flat::<B>(sum_dy_x_hat), flat::<B>(sum_dy))
     }
 }
 
@@ -299,44 +321,30 @@ mod composed {
 impl NormBackend for burn::backend::Cube {}
 
 impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B, C> {
-    fn norm_statistics(x: FloatTensor<Self>) -> FloatTensor<Self> {
-        /// Statistics take no gradient: nothing flows back through them.
-        #[derive(Debug)]
-        struct Statistics;
-
-        impl<B: Backend> Backward<B, 1> for Statistics {
-            type State = ();
-
-            fn backward(self, _: Ops<(), 1>, _: &mut Gradients, _: &mut Checkpointer) {}
-        }
-
-        match Statistics
-            .prepare::<C>([x.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => prep.finish((), B::norm_statistics(x.into_primitive())),
-            OpsKind::UnTracked(prep) => prep.finish(B::norm_statistics(x.into_primitive())),
-        }
+    fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        // Statistics take no gradient: nothing flows back through them.
+        let (mean, variance) = B::norm_statistics(x.into_primitive());
+        (Self::from_inner(mean), Self::from_inner(variance))
     }
 
     fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
         beta: FloatTensor<Self>,
-        statistics: FloatTensor<Self>,
+        mean: FloatTensor<Self>,
+        variance: FloatTensor<Self>,
         epsilon: f64,
     ) -> FloatTensor<Self> {
         #[derive(Debug)]
         struct NormReluTrain;
 
         impl<B: Backend + NormBackend> Backward<B, 3> for NormReluTrain {
-            /// The input and gamma, the batch statistics, epsilon, and the output (where the
-            /// ReLU passed gradient).
+            /// The input and gamma, the batch's mean and variance, epsilon, and the output
+            /// (where the ReLU passed gradient).
             type State = (
                 NodeId,
                 NodeId,
-                B::FloatTensorPrimitive,
+                [B::FloatTensorPrimitive; 2],
                 f64,
                 B::FloatTensorPrimitive,
             );
@@ -349,12 +357,12 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
             ) {
                 let [node_x, node_gamma, node_beta] = ops.parents;
                 let grad = grads.consume::<B>(&ops.node);
-                let (x_state, gamma_state, statistics, epsilon, output) = ops.state;
+                let (x_state, gamma_state, [mean, variance], epsilon, output) = ops.state;
                 let x = checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(x_state);
                 let gamma =
                     checkpointer.retrieve_node_output::<B::FloatTensorPrimitive>(gamma_state);
                 let (x_grad, gamma_grad, beta_grad) =
-                    B::norm_relu_train_grads(x, gamma, statistics, epsilon, output, grad);
+                    B::norm_relu_train_grads(x, gamma, mean, variance, epsilon, output, grad);
                 for (node, grad) in [
                     (node_x, x_grad),
                     (node_gamma, gamma_grad),
@@ -375,22 +383,30 @@ impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B
             OpsKind::Tracked(mut prep) => {
                 let x_state = prep.checkpoint(&x);
                 let gamma_state = prep.checkpoint(&gamma);
-                let statistics = statistics.into_primitive();
+                let [mean, variance] = [mean, variance].map(|t| t.into_primitive());
                 let output = B::norm_relu_train(
                     x.into_primitive(),
                     gamma.into_primitive(),
                     beta.into_primitive(),
-                    statistics.clone(),
+                    mean.clone(),
+                    variance.clone(),
                     epsilon,
                 );
-                let state = (x_state, gamma_state, statistics, epsilon, output.clone());
+                let state = (
+                    x_state,
+                    gamma_state,
+                    [mean, variance],
+                    epsilon,
+                    output.clone(),
+                );
                 prep.finish(state, output)
             }
             OpsKind::UnTracked(prep) => prep.finish(B::norm_relu_train(
                 x.into_primitive(),
                 gamma.into_primitive(),
                 beta.into_primitive(),
-                statistics.into_primitive(),
+                mean.into_primitive(),
+                variance.into_primitive(),
                 epsilon,
             )),
         }
@@ -405,18 +421,17 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
         return relu(norm.forward(x));
     }
     let device = x.device();
-    let statistics: Tensor<2> = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_statistics(
-        x.clone().detach().into_dispatch(),
-    ));
+    let (mean, variance) =
+        <Dispatch as NormBackend>::norm_statistics(x.clone().detach().into_dispatch());
+    let [mean, variance]: [Tensor<1>; 2] = [mean, variance].map(Tensor::from_dispatch);
     let output = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_relu_train(
         x.into_dispatch(),
         norm.gamma.val().into_dispatch(),
         norm.beta.val().into_dispatch(),
-        statistics.clone().into_dispatch(),
+        mean.clone().into_dispatch(),
+        variance.clone().into_dispatch(),
         norm.epsilon,
     ));
-    let c = statistics.dims()[1];
-    let [mean, variance] = [0, 1].map(|i| statistics.clone().slice([i..i + 1, 0..c]).reshape([c]));
     let momentum = norm.momentum;
     let update = |running: Tensor<1>, batch: Tensor<1>| {
         running
@@ -434,6 +449,8 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
 
 #[cfg(test)]
 mod tests {
+    use burn::backend::ops::{ActivationOps, ModuleOps};
+
     use super::*;
     use crate::testing::assert_close;
 
@@ -448,8 +465,13 @@ mod tests {
         [values(x), values(gamma), values(beta)].concat()
     }
 
+    /// Mean and variance, one after the other.
+    fn statistic_values((mean, variance): (FloatTensor<Flex>, FloatTensor<Flex>)) -> Vec<f32> {
+        [values(mean), values(variance)].concat()
+    }
+
     #[test]
-    fn the_cpu_loops_equal_the_composed_batch_norm_and_its_gradients() {
+    fn the_cpu_loops_and_the_composed_operation_equal_burns_batch_norm_and_its_gradients() {
         let (n, c, h) = (3, 4, 5);
         let wave = |len: usize, rate: f32, scale: f32| -> Vec<f32> {
             (0..len)
@@ -460,51 +482,69 @@ mod tests {
         let gamma = || flex_tensor(wave(c, 0.9, 1.0), [c]);
         let beta = || flex_tensor(wave(c, 1.3, 1.0), [c]);
         let grad = || flex_tensor(wave(n * c * h * h, 0.11, 1.0), [n, c, h, h]);
-        let statistics = || Flex::norm_statistics(x());
-        let output = || composed::train::<Flex>(x(), gamma(), beta(), statistics(), 1e-5);
-        assert_close(
-            &values(statistics()),
-            &values(composed::statistics::<Flex>(x())),
-            1e-5,
-            "statistics",
+        let epsilon = 1e-5;
+        // burn's generic batch norm in training and its backward, with the ReLU's.
+        let burns = Flex::batch_norm_train(x(), gamma(), beta(), epsilon);
+        let (mean, variance) = (burns.mean, burns.variance);
+        let statistics = || (mean.clone(), variance.clone());
+        let output = Flex::relu(burns.output);
+        let backward = Flex::batch_norm_train_backward(
+            x(),
+            gamma(),
+            mean.clone(),
+            variance.clone(),
+            epsilon,
+            Flex::relu_backward(output.clone(), grad()),
         );
-        assert_close(
-            &values(Flex::norm_relu_train(
+        let reference = (
+            statistic_values(statistics()),
+            values(output.clone()),
+            grad_values((backward.x_grad, backward.gamma_grad, backward.beta_grad)),
+        );
+        let loops = (
+            statistic_values(Flex::norm_statistics(x())),
+            values(Flex::norm_relu_train(
                 x(),
                 gamma(),
                 beta(),
-                statistics(),
-                1e-5,
+                mean.clone(),
+                variance.clone(),
+                epsilon,
             )),
-            &values(composed::train::<Flex>(
+            grad_values(Flex::norm_relu_train_grads(
+                x(),
+                gamma(),
+                mean.clone(),
+                variance.clone(),
+                epsilon,
+                output.clone(),
+                grad(),
+            )),
+        );
+        let composed = (
+            statistic_values(composed::statistics::<Flex>(x())),
+            values(composed::train::<Flex>(
                 x(),
                 gamma(),
                 beta(),
-                statistics(),
-                1e-5,
+                mean.clone(),
+                variance.clone(),
+                epsilon,
             )),
-            1e-5,
-            "output",
-        );
-        assert_close(
-            &grad_values(Flex::norm_relu_train_grads(
+            grad_values(composed::grads::<Flex>(
                 x(),
                 gamma(),
-                statistics(),
-                1e-5,
-                output(),
+                mean.clone(),
+                variance.clone(),
+                epsilon,
+                output.clone(),
                 grad(),
             )),
-            &grad_values(composed::grads::<Flex>(
-                x(),
-                gamma(),
-                statistics(),
-                1e-5,
-                output(),
-                grad(),
-            )),
-            1e-4,
-            "gradients",
         );
+        for (what, ours) in [("the loops", loops), ("composed", composed)] {
+            assert_close(&ours.0, &reference.0, 1e-5, &format!("{what}: statistics"));
+            assert_close(&ours.1, &reference.1, 1e-5, &format!("{what}: output"));
+            assert_close(&ours.2, &reference.2, 1e-4, &format!("{what}: gradients"));
+        }
     }
 }
