@@ -105,20 +105,33 @@ fn on(device: &Device, net: &QNetConfig, nets: &QNets) -> QNets {
         .unwrap()
 }
 
-/// Both nets' Q maps over all 16 rotations, `ours` against `reference`.
+/// Both nets' Q maps over all 16 rotations, `ours` against `reference`: of `input`, and of
+/// it together with its mirror image in one batch (each input sent once and rotated on the
+/// device).
 fn maps_agree(ours: &QNets, reference: &QNets, net: &QNetConfig, input: &NetInput, what: &str) {
     let geometry = qnet::Geometry::new(input.side, net);
-    for primitive in [Primitive::Push, Primitive::Grasp] {
-        let got = ours.all_rotations(primitive, input, &geometry).unwrap();
-        let want = reference
-            .all_rotations(primitive, input, &geometry)
-            .unwrap();
-        let d = Difference::between(got.values(), want.values());
-        println!(
-            "{what}, {primitive:?}, context {:?}: max abs difference {:e}, relative {:e}",
-            net.context_dilations, d.max_abs, d.max_rel
-        );
-        assert!(d.max_rel <= AGREEMENT, "{what}, {primitive:?}: {d:?}");
+    let mirror = input.mirrored();
+    let primitives = [Primitive::Push, Primitive::Grasp];
+    let batch = ours
+        .all_rotations_of_each(primitives, &[input, &mirror], &geometry)
+        .unwrap();
+    for (i, primitive) in primitives.into_iter().enumerate() {
+        let alone = ours.all_rotations(primitive, input, &geometry).unwrap();
+        for (got, (of, input)) in [&alone, &batch[0][i], &batch[1][i]].into_iter().zip([
+            ("alone", input),
+            ("batched", input),
+            ("batched", &mirror),
+        ]) {
+            let want = reference
+                .all_rotations(primitive, input, &geometry)
+                .unwrap();
+            let d = Difference::between(got.values(), want.values());
+            println!(
+                "{what}, {primitive:?}, context {:?}, {of}: max abs difference {:e}, relative {:e}",
+                net.context_dilations, d.max_abs, d.max_rel
+            );
+            assert!(d.max_rel <= AGREEMENT, "{what}, {primitive:?}, {of}: {d:?}");
+        }
     }
 }
 

@@ -44,9 +44,9 @@ impl ActingNets {
     }
 
     /// Q maps of each of `primitives` for all rotations, for each of `inputs` (several
-    /// environments' at one decision). In the CPU's inference form each input rotation is
-    /// computed once for all the primitives, and the batch is one: every input rotation of
-    /// every input spread over the cores together.
+    /// environments' at one decision), as one batch: in the CPU's inference form every input
+    /// rotation of every input spread over the cores together, each computed once for all
+    /// the primitives; on a device one forward pass of each net over them all.
     pub fn all_rotations_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
@@ -57,15 +57,7 @@ impl ActingNets {
             ActingNets::Cpu(inference) => {
                 inference.all_rotations_of_each(primitives, inputs, geometry)
             }
-            // burn's forward on a device: one input after another.
-            ActingNets::Device(nets) => inputs
-                .iter()
-                .map(|input| {
-                    try_map(primitives, |primitive| {
-                        nets.all_rotations(primitive, input, geometry)
-                    })
-                })
-                .collect(),
+            ActingNets::Device(nets) => nets.all_rotations_of_each(primitives, inputs, geometry),
         }
     }
 

@@ -9,12 +9,17 @@
 //! `grid_sample`, or, in the CPU inference form, by the same bilinear taps precomputed here
 //! ([`Geometry::back_taps`]). The learner, which needs one pixel per map, reads it off the
 //! low-resolution map through those taps and the upsampling's, folded together
-//! ([`Geometry::add_pixel_weights`]).
+//! ([`Geometry::add_pixel_weights`]). On a GPU the inputs are rotated there, by the same
+//! gather from each input sent once ([`Geometry::rotated_planes`]).
 
+use std::sync::OnceLock;
+
+use burn::prelude::*;
 use sim::{ROTATIONS, rotation_angle};
 
 use crate::config::QNetConfig;
 use crate::error::QNetError;
+use crate::fresh::zeroed_triple;
 use crate::input::NetInput;
 
 /// A padded pixel whose source lies outside the image.
@@ -34,6 +39,9 @@ pub struct Geometry {
     /// For each row (and column) of the heightmap, the two low-resolution rows the
     /// upsampling blends and the second one's weight.
     upsample: Vec<(u32, u32, f32)>,
+    /// `sources` on the device the nets run on when that is not the CPU, made at its first
+    /// use there ([`Geometry::rotated_planes`]).
+    device_sources: OnceLock<(Device, Tensor<2, Int>)>,
 }
 
 /// Four pixels of a map, row-major indices, and their bilinear weights.
@@ -82,6 +90,7 @@ impl Geometry {
             sources,
             back: Vec::new(),
             upsample: Vec::new(),
+            device_sources: OnceLock::new(),
         };
         geometry.back = (0..ROTATIONS).map(|k| geometry.taps_of(k)).collect();
         geometry.upsample = geometry.upsample_of();
@@ -224,6 +233,118 @@ impl Geometry {
         }
     }
 
+    /// The nets' input for `passes` (an input and the rotation it is turned by, each): the
+    /// planes padded and rotated by -theta, colour `[m, 3, P, P]`, depth and mask
+    /// `[m, 1, P, P]`, on `device`. On the CPU they are gathered here; on any other device
+    /// (a GPU's) each distinct input is sent once as it is, a sixteenth of its 16 rotations'
+    /// padded planes, and gathered there through the rotation tables, which stay on that
+    /// device.
+    pub fn rotated_planes(&self, passes: &[(&NetInput, u8)], device: &Device) -> [Tensor<4>; 3] {
+        if device.clone().without_autodiff() == Device::flex() {
+            self.rotated_here(passes, device)
+        } else {
+            self.rotated_there(passes, device)
+        }
+    }
+
+    /// [`Geometry::rotated_planes`] gathered on this machine's cores.
+    fn rotated_here(&self, passes: &[(&NetInput, u8)], device: &Device) -> [Tensor<4>; 3] {
+        let (m, p) = (passes.len(), self.padded);
+        let area = p * p;
+        let planes = zeroed_triple(m, [3 * area, area, area], |i, planes| {
+            let (input, rotation) = passes[i];
+            self.rotate_input_into(input, rotation, planes);
+        });
+        let [colour, depth, mask] = planes;
+        let plane = |values: Vec<f32>, channels: usize| {
+            Tensor::<4>::from_data(TensorData::new(values, [m, channels, p, p]), device)
+        };
+        [plane(colour, 3), plane(depth, 1), plane(mask, 1)]
+    }
+
+    /// [`Geometry::rotated_planes`] gathered on `device` from each distinct input's planes.
+    fn rotated_there(&self, passes: &[(&NetInput, u8)], device: &Device) -> [Tensor<4>; 3] {
+        let (m, p) = (passes.len(), self.padded);
+        // Each distinct input's pixels, then one of the bare table's (what a padded pixel
+        // reads): colour three values a pixel, depth and mask one.
+        let n = self.side * self.side;
+        let stride = n + 1;
+        let mut inputs: Vec<&NetInput> = Vec::new();
+        let (mut turns, mut offsets) = (Vec::with_capacity(m), Vec::with_capacity(m));
+        for &(input, rotation) in passes {
+            let j = inputs
+                .iter()
+                .position(|&other| std::ptr::eq(other, input))
+                .unwrap_or_else(|| {
+                    inputs.push(input);
+                    inputs.len() - 1
+                });
+            turns.push(i64::from(rotation));
+            offsets.push((j * stride) as i64);
+        }
+        let table = NetInput::table_values();
+        let mut planes =
+            [3, 1, 1].map(|channels| Vec::with_capacity(inputs.len() * stride * channels));
+        for input in &inputs {
+            let [colour, depth, mask] = &mut planes;
+            let c = &input.colour;
+            colour.extend((0..n).flat_map(|i| [c[i], c[n + i], c[2 * n + i]]));
+            colour.extend(&table[..3]);
+            depth.extend(&input.depth);
+            depth.push(table[3]);
+            mask.extend(&input.mask);
+            mask.push(table[4]);
+        }
+        // Every rotation of one input in order is the table itself.
+        let sources = self.device_sources(device);
+        let mut index = if turns.iter().copied().eq(0..i64::from(ROTATIONS)) {
+            sources
+        } else {
+            sources.select(0, Tensor::<1, Int>::from_ints(turns.as_slice(), device))
+        };
+        if offsets.iter().any(|&offset| offset > 0) {
+            index = index + Tensor::<1, Int>::from_ints(offsets.as_slice(), device).reshape([m, 1]);
+        }
+        // Gathered a pixel at a time, its channels side by side: the channels-last layout a
+        // GPU's convolutions take.
+        let index = index.reshape([m * p * p]);
+        planes.map(|values| {
+            let channels = values.len() / (inputs.len() * stride);
+            Tensor::<2>::from_data(
+                TensorData::new(values, [inputs.len() * stride, channels]),
+                device,
+            )
+            .select(0, index.clone())
+            .reshape([m, p, p, channels])
+            .permute([0, 3, 1, 2])
+        })
+    }
+
+    /// `sources` on `device` as indices into an input's pixels, `n` (the table's value
+    /// after them) for a pixel outside the image: `[ROTATIONS, P x P]`. Kept for the device
+    /// first asked for, made afresh for any other.
+    fn device_sources(&self, device: &Device) -> Tensor<2, Int> {
+        let make = || {
+            let outside = (self.side * self.side) as i64;
+            let indices: Vec<i64> = self
+                .sources
+                .iter()
+                .flatten()
+                .map(|&s| if s == OUTSIDE { outside } else { i64::from(s) })
+                .collect();
+            let shape = [self.sources.len(), self.padded * self.padded];
+            Tensor::<2, Int>::from_data(TensorData::new(indices, shape), device)
+        };
+        let (kept, sources) = self.device_sources.get_or_init(|| (device.clone(), make()));
+        // (Devices compare equal with and without autodiff; an index made for the one would
+        // carry its autodiff into the other's forward.)
+        if kept == device && kept.is_autodiff() == device.is_autodiff() {
+            sources.clone()
+        } else {
+            make()
+        }
+    }
+
     /// Adds to `weights` (`s x s`, a low-resolution map's pixels) each pixel's share of the
     /// value at heightmap pixel `(row, col)` once the map is rotated back by rotation `k`'s
     /// angle and upsampled: the bilinear upsampling's four taps of the rotated-back map,
@@ -261,5 +382,43 @@ impl Geometry {
             }
         }
         grid
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `side x side` input whose every value differs, no scene needed.
+    fn numbered(side: usize, offset: f32) -> NetInput {
+        let plane = |planes: usize, from: f32| {
+            (0..planes * side * side)
+                .map(|i| from + i as f32 / 1000.0)
+                .collect()
+        };
+        NetInput {
+            side,
+            colour: plane(3, offset),
+            depth: plane(1, offset + 10.0),
+            mask: plane(1, offset + 20.0),
+        }
+    }
+
+    #[test]
+    fn the_gather_a_device_runs_gives_the_planes_rotated_here() {
+        // Every rotation of one input in order (the table itself), and rotations out of
+        // order over two inputs (rows picked and offset per input).
+        let geometry = Geometry::new(12, &QNetConfig::default());
+        let (a, b) = (numbered(12, 0.0), numbered(12, 100.0));
+        let every: Vec<(&NetInput, u8)> = (0..ROTATIONS).map(|k| (&a, k)).collect();
+        let mixed = [(&b, 3), (&a, 3), (&b, 0), (&a, 15), (&b, 9)];
+        let device = Device::flex();
+        let values =
+            |planes: [Tensor<4>; 3]| planes.map(|t| t.into_data().try_to_vec::<f32>().unwrap());
+        for passes in [&every[..], &mixed] {
+            let here = values(geometry.rotated_here(passes, &device));
+            let there = values(geometry.rotated_there(passes, &device));
+            assert_eq!(there, here);
+        }
     }
 }

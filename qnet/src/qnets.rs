@@ -13,11 +13,10 @@ use sim::Primitive;
 
 use policy::QMaps;
 
-use crate::acting::{every_rotation, q_maps};
+use crate::acting::{every_rotation, q_maps, try_map};
 use crate::config::QNetConfig;
 use crate::equivariant;
 use crate::error::QNetError;
-use crate::fresh::zeroed_triple;
 use crate::geometry::Geometry;
 use crate::input::NetInput;
 use crate::net::PrimitiveNet;
@@ -166,7 +165,7 @@ impl QNets {
     ) -> Result<(Tensor<4>, Vec<u8>), QNetError> {
         let device = self.device();
         let net = self.net(primitive);
-        let (p, s) = (geometry.padded(), geometry.low_side());
+        let s = geometry.low_side();
         // The passes (input, input rotation) and each item's (pass, output channel).
         let mut passes: Vec<(&NetInput, u8)> = Vec::new();
         let mut picks = Vec::with_capacity(items.len());
@@ -180,19 +179,12 @@ impl QNets {
             });
             picks.push((pass, channel));
         }
-        let (m, area) = (passes.len(), p * p);
-        let [colour, depth, mask] = zeroed_triple(m, [3 * area, area, area], |i, planes| {
-            let (input, turn) = passes[i];
-            geometry.rotate_input_into(input, turn, planes);
-        });
-        let plane = |values: Vec<f32>, channels: usize| {
-            Tensor::<4>::from_data(TensorData::new(values, [m, channels, p, p]), &device)
-        };
-        let planes = (plane(colour, 3), plane(depth, 1), plane(mask, 1));
+        let m = passes.len();
+        let [colour, depth, mask] = geometry.rotated_planes(&passes, &device);
         let low = if outcome {
-            net.forward_with_outcome(planes.0, planes.1, planes.2)
+            net.forward_with_outcome(colour, depth, mask)
         } else {
-            net.forward(planes.0, planes.1, planes.2)
+            net.forward(colour, depth, mask)
         };
         // Each item's channel of each head (Q, then outcome).
         let channels = low.dims()[1];
@@ -229,6 +221,37 @@ impl QNets {
         q_maps(geometry, values)
     }
 
+    /// Q maps of each of `primitives` for all rotations, for each of `inputs` (several
+    /// environments' at one decision): one forward pass of each net over every rotation of
+    /// every input.
+    pub fn all_rotations_of_each<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        inputs: &[&NetInput],
+        geometry: &Geometry,
+    ) -> Result<Vec<[QMaps; N]>, QNetError> {
+        let rotations = every_rotation();
+        let items: Vec<(&NetInput, u8)> = inputs
+            .iter()
+            .flat_map(|&input| rotations.iter().map(move |&k| (input, k)))
+            .collect();
+        let per_input = rotations.len() * geometry.side() * geometry.side();
+        let mut maps = try_map(primitives, |primitive| {
+            let values = self.values(primitive, &items, geometry)?;
+            Ok(values
+                .chunks_exact(per_input)
+                .map(|one| q_maps(geometry, one.to_vec()))
+                .collect::<Result<Vec<_>, _>>()?
+                .into_iter())
+        })?;
+        Ok((0..inputs.len())
+            .map(|_| {
+                maps.each_mut()
+                    .map(|m| m.next().expect("maps for every input"))
+            })
+            .collect())
+    }
+
     /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
     pub fn rotations(
         &self,
@@ -238,7 +261,17 @@ impl QNets {
         geometry: &Geometry,
     ) -> Result<Vec<f32>, QNetError> {
         let items: Vec<(&NetInput, u8)> = rotations.iter().map(|&k| (input, k)).collect();
-        let maps = self.q_maps(primitive, &items, geometry)?;
+        self.values(primitive, &items, geometry)
+    }
+
+    /// [`Self::q_maps`] read back, one `side x side` map after another.
+    fn values(
+        &self,
+        primitive: Primitive,
+        items: &[(&NetInput, u8)],
+        geometry: &Geometry,
+    ) -> Result<Vec<f32>, QNetError> {
+        let maps = self.q_maps(primitive, items, geometry)?;
         Ok(maps
             .into_data()
             .try_to_vec::<f32>()
@@ -408,6 +441,31 @@ mod tests {
             .collect();
         assert_eq!(together.len(), 4 * side * side);
         assert_close(&together, &apart, 1e-5, "four channels of one pass");
+    }
+
+    #[test]
+    fn every_rotation_of_several_inputs_in_one_pass_gives_each_inputs_own_maps() {
+        let side = 16;
+        let (a, b) = (patterned_input(side), patterned_input(side).mirrored());
+        let config = QNetConfig {
+            trunk_widths: vec![4, 8],
+            head_width: 8,
+            ..QNetConfig::default()
+        };
+        let nets = QNets::new(&config, &Device::flex());
+        let geometry = Geometry::new(side, &config);
+        let primitives = [Primitive::Push, Primitive::Grasp];
+        let together = nets
+            .all_rotations_of_each(primitives, &[&a, &b], &geometry)
+            .unwrap();
+        assert_eq!(together.len(), 2);
+        for (maps, input) in together.iter().zip([&a, &b]) {
+            for (maps, primitive) in maps.iter().zip(primitives) {
+                let alone = nets.all_rotations(primitive, input, &geometry).unwrap();
+                assert_close(maps.values(), alone.values(), 1e-5, "one input's maps");
+            }
+        }
+        assert_ne!(together[0][1].values(), together[1][1].values());
     }
 
     #[test]
