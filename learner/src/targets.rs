@@ -24,7 +24,8 @@ pub struct NextState {
 }
 
 /// The value of each state in `states`: its best allowed action under `trained`, valued by
-/// `target` (both in inference form).
+/// `target` (both in inference form). The trained nets score every state of a primitive in
+/// one batch.
 pub(crate) fn double_q_values(
     trained: &QNets,
     target: &QNets,
@@ -35,15 +36,24 @@ pub(crate) fn double_q_values(
         return Ok(Vec::new());
     }
     let (trained, target) = (ActingNets::new(trained)?, ActingNets::new(target)?);
-    states
-        .iter()
-        .map(|state| {
-            let maps = trained.all_rotations(state.primitive, &state.input, geometry)?;
+    let mut values = vec![0.0; states.len()];
+    for primitive in [Primitive::Push, Primitive::Grasp] {
+        let of: Vec<usize> = (0..states.len())
+            .filter(|&i| states[i].primitive == primitive)
+            .collect();
+        if of.is_empty() {
+            continue;
+        }
+        let inputs: Vec<&NetInput> = of.iter().map(|&i| &states[i].input).collect();
+        let maps = trained.all_rotations_of_each([primitive], &inputs, geometry)?;
+        for (&i, [maps]) in of.iter().zip(maps) {
+            let state = &states[i];
             let (_, rotation, row, col) = maps
                 .best_where(&state.allowed)
-                .ok_or(LearnerError::NoQValue(state.primitive))?;
-            let map = target.rotations(state.primitive, &state.input, &[rotation], geometry)?;
-            Ok(map[row * geometry.side() + col])
-        })
-        .collect()
+                .ok_or(LearnerError::NoQValue(primitive))?;
+            let map = target.rotations(primitive, &state.input, &[rotation], geometry)?;
+            values[i] = map[row * geometry.side() + col];
+        }
+    }
+    Ok(values)
 }

@@ -630,6 +630,41 @@ fn the_learners_next_values_are_chosen_by_the_trained_nets_and_valued_by_the_tar
     let got = value(&trainer).unwrap()[0];
     assert!((got - trained_q).abs() < 1e-5, "{got} vs {trained_q}");
 
+    // Several states of both primitives at once (each primitive's scored in one batch):
+    // each state's value as alone, in its own place.
+    let states: Vec<NextState> = first
+        .iter()
+        .zip([
+            Primitive::Grasp,
+            Primitive::Push,
+            Primitive::Grasp,
+            Primitive::Push,
+        ])
+        .map(|(sample, primitive)| NextState {
+            input: sample.input.clone(),
+            primitive,
+            allowed: allowed.clone(),
+        })
+        .collect();
+    let together = trainer.next_values(&states).unwrap().unwrap();
+    let alone: Vec<f32> = states
+        .iter()
+        .map(|state| {
+            trainer
+                .next_values(std::slice::from_ref(state))
+                .unwrap()
+                .unwrap()[0]
+        })
+        .collect();
+    assert_eq!(together.len(), 4);
+    for (a, b) in together.iter().zip(&alone) {
+        assert!(
+            (a - b).abs() < 1e-5,
+            "together {together:?}, alone {alone:?}"
+        );
+    }
+    assert_ne!(together[0], together[1]);
+
     // Without target nets the learner values nothing: labels keep their actors' values.
     let plain = trainer_from(nets, learning(0), TrainedNet::Push);
     assert_eq!(value(&plain), None);
