@@ -266,11 +266,13 @@ mod composed {
 
     /// Mean, then biased variance about it (two passes, as the CPU's loops).
     pub fn statistics<B: Backend>(x: FloatTensor<B>) -> (FloatTensor<B>, FloatTensor<B>) {
-        let n = Scalar::Float(count(&x.shape()) as f64);
-        let mean = B::float_div_scalar(channel_sums::<B>(x.clone()), n);
+        // Each value takes its share before the sum: fusion joins that with the reduction's
+        // read, where a division after it ran as a kernel of its own.
+        let share = Scalar::Float(1.0 / count(&x.shape()) as f64);
+        let mean = channel_sums::<B>(B::float_mul_scalar(x.clone(), share));
         let centred = B::float_sub(x, mean.clone());
-        let variance =
-            B::float_div_scalar(channel_sums::<B>(B::float_mul(centred.clone(), centred)), n);
+        let squares = B::float_mul(centred.clone(), centred);
+        let variance = channel_sums::<B>(B::float_mul_scalar(squares, share));
         (flat::<B>(mean), flat::<B>(variance))
     }
 
