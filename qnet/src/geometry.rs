@@ -40,8 +40,11 @@ pub struct Geometry {
     /// upsampling blends and the second one's weight.
     upsample: Vec<(u32, u32, f32)>,
     /// `sources` on the device the nets run on when that is not the CPU, made at its first
-    /// use there ([`Geometry::rotated_planes`]).
-    device_sources: OnceLock<(Device, Tensor<2, Int>)>,
+    /// use there ([`Geometry::rotated_planes`]): one for a device without autodiff (acting,
+    /// a learner's next-state values), one for it with autodiff (training). Devices compare
+    /// equal with and without autodiff, and an index made for the one would carry its
+    /// autodiff into the other's forward.
+    device_sources: [OnceLock<(Device, Tensor<2, Int>)>; 2],
 }
 
 /// Four pixels of a map, row-major indices, and their bilinear weights.
@@ -90,7 +93,7 @@ impl Geometry {
             sources,
             back: Vec::new(),
             upsample: Vec::new(),
-            device_sources: OnceLock::new(),
+            device_sources: Default::default(),
         };
         geometry.back = (0..ROTATIONS).map(|k| geometry.taps_of(k)).collect();
         geometry.upsample = geometry.upsample_of();
@@ -302,7 +305,7 @@ impl Geometry {
         } else {
             sources.select(0, Tensor::<1, Int>::from_ints(turns.as_slice(), device))
         };
-        if offsets.iter().any(|&offset| offset > 0) {
+        if inputs.len() > 1 {
             index = index + Tensor::<1, Int>::from_ints(offsets.as_slice(), device).reshape([m, 1]);
         }
         // Gathered a pixel at a time, its channels side by side: the channels-last layout a
@@ -321,8 +324,8 @@ impl Geometry {
     }
 
     /// `sources` on `device` as indices into an input's pixels, `n` (the table's value
-    /// after them) for a pixel outside the image: `[ROTATIONS, P x P]`. Kept for the device
-    /// first asked for, made afresh for any other.
+    /// after them) for a pixel outside the image: `[ROTATIONS, P x P]`. Kept for the first
+    /// device asked for with autodiff and the first without, made afresh for any other.
     fn device_sources(&self, device: &Device) -> Tensor<2, Int> {
         let make = || {
             let outside = (self.side * self.side) as i64;
@@ -335,10 +338,9 @@ impl Geometry {
             let shape = [self.sources.len(), self.padded * self.padded];
             Tensor::<2, Int>::from_data(TensorData::new(indices, shape), device)
         };
-        let (kept, sources) = self.device_sources.get_or_init(|| (device.clone(), make()));
-        // (Devices compare equal with and without autodiff; an index made for the one would
-        // carry its autodiff into the other's forward.)
-        if kept == device && kept.is_autodiff() == device.is_autodiff() {
+        let kind = &self.device_sources[usize::from(device.is_autodiff())];
+        let (kept, sources) = kind.get_or_init(|| (device.clone(), make()));
+        if kept == device {
             sources.clone()
         } else {
             make()
