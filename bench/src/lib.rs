@@ -411,6 +411,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         // The default learning config keeps no average: the published nets are the trained.
         let before_batch = trainer.published_nets();
         let (batch_train, first_batch) = train_step_ms(&mut trainer, &samples(8), reps)?;
+        let publish = publish_ms(&trainer, reps)?;
         if backend != Backend::Cpu {
             // The same weights on the CPU: how far this device's Q maps are from the CPU's,
             // and the CPU's training step beside this device's.
@@ -430,6 +431,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
                 Trainer::new(cpu_nets, &net, side, &learning, TrainedNet::Grasp, &cpu);
             let (cpu_batch_train, _) = train_step_ms(&mut cpu_trainer, &samples(8), reps)?;
             put("cpu_batch_train_step_ms", cpu_batch_train);
+            put("cpu_publish_ms", publish_ms(&cpu_trainer, reps)?);
             put("batch_train_speedup_vs_cpu", cpu_batch_train / batch_train);
         }
         let per_pass = net.flops_per_pass(geometry.padded());
@@ -443,6 +445,7 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         let gflop_batch_train = 3.0 * 8.0 * passes_per_grasp * per_pass / 1e9;
         put("train_step_ms", train);
         put("batch_train_step_ms", batch_train);
+        put("publish_ms", publish);
         put("gflop_per_inference", gflop_inference);
         put("achieved_gflops", gflop_batch_train / (batch_train / 1e3));
         put("inference_gflops", gflop_inference / (infer / 1e3));
@@ -527,6 +530,18 @@ fn train_step_ms(
         .map(ms)
         .collect();
     Ok((median(times), first))
+}
+
+/// The median time of `reps` publications of the trainer's nets as bytes: what the learner
+/// sends the actors after every update at `publish_every = 1`.
+fn publish_ms(trainer: &learner::Trainer, reps: usize) -> Result<f64> {
+    let times = (0..reps)
+        .map(|_| {
+            let (bytes, time) = timed(|| trainer.published_nets().to_bytes());
+            bytes.map(|_| ms(time))
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(median(times))
 }
 
 /// The backend's rate on a large square matrix product, the ceiling for the nets.

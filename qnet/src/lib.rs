@@ -19,6 +19,7 @@ pub mod error;
 mod fresh;
 pub mod gemm_conv;
 pub mod geometry;
+mod host_copy;
 pub mod inference;
 pub mod input;
 pub mod layers;

@@ -18,6 +18,7 @@ use crate::config::QNetConfig;
 use crate::equivariant;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
+use crate::host_copy::copied_to;
 use crate::input::NetInput;
 use crate::net::PrimitiveNet;
 
@@ -279,10 +280,15 @@ impl QNets {
     }
 
     /// The weights of both nets as bytes (burn's burnpack format), for checkpoints and for
-    /// broadcasting to actors.
+    /// broadcasting to actors. Nets on a GPU are first read to the CPU in one transfer.
     pub fn to_bytes(&self) -> Result<Vec<u8>, QNetError> {
-        let bytes = self
-            .clone()
+        let host = Device::flex();
+        let nets = if self.device().without_autodiff() == host {
+            self.clone()
+        } else {
+            copied_to(self, &host)
+        };
+        let bytes = nets
             .into_record()
             .into_bytes()
             .map_err(|e| QNetError::Weights(e.to_string()))?;
@@ -466,6 +472,22 @@ mod tests {
             }
         }
         assert_ne!(together[0][1].values(), together[1][1].values());
+    }
+
+    #[test]
+    fn nets_copied_in_one_read_save_the_bytes_they_were_read_from() {
+        let device = Device::flex();
+        let config = QNetConfig {
+            context_dilations: vec![1, 2],
+            grasp_outcome_head: true,
+            ..QNetConfig::default()
+        };
+        let nets = QNets::new(&config, &device);
+        // As a trainer holds them: on the autodiff device, in training form.
+        let trained = nets.clone().to_device(&device.clone().autodiff()).train();
+        let copy = copied_to(&trained, &device);
+        assert!(!copy.device().is_autodiff());
+        assert_eq!(copy.to_bytes().unwrap(), nets.to_bytes().unwrap());
     }
 
     #[test]
