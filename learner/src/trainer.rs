@@ -11,6 +11,7 @@ use burn::nn::loss::HuberLossConfig;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
+use burn::tensor::Transaction;
 use burn::tensor::activation::log_sigmoid;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use rand::{RngExt, SeedableRng};
@@ -231,20 +232,20 @@ impl Trainer {
             loss = loss + outcome.mul_scalar(self.config.outcome_loss_weight);
         }
 
-        let q_values = q
-            .clone()
-            .into_data()
-            .try_to_vec::<f32>()
-            .expect("f32 Q values");
-        let loss_value = loss
-            .clone()
-            .into_data()
-            .try_to_vec::<f32>()
-            .expect("f32 loss")[0];
         let grads = GradientsParams::from_grads(loss.backward(), &self.nets);
         self.nets = self
             .optimiser
             .step(self.learning_rate(), self.nets.clone(), grads);
+        // Read after the step is queued, both in one transfer: a GPU runs the whole update
+        // before the host waits for it, and the host waits once.
+        let [q_values, loss_value] = Transaction::default()
+            .register(q)
+            .register(loss)
+            .execute()
+            .try_into()
+            .expect("two reads");
+        let q_values = q_values.try_into_vec::<f32>().expect("f32 Q values");
+        let loss_value = loss_value.try_into_vec::<f32>().expect("f32 loss")[0];
         self.updates += 1;
         if let Some(average) = self.average.take() {
             // A plain mean of the run's updates until there are 1 / rate of them.
