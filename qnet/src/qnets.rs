@@ -4,11 +4,11 @@
 use burn::module::Module;
 use burn::prelude::*;
 use burn::store::ModuleRecord;
-use burn::tensor::Bytes;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{
     GridSampleOptions, GridSamplePaddingMode, InterpolateMode, InterpolateOptions,
 };
+use burn::tensor::{Bytes, TensorData, Transaction};
 use sim::Primitive;
 
 use policy::QMaps;
@@ -224,7 +224,9 @@ impl QNets {
 
     /// Q maps of each of `primitives` for all rotations, for each of `inputs` (several
     /// environments' at one decision): one forward pass of each net over every rotation of
-    /// every input.
+    /// every input, and their maps read back together once every pass is queued (on a GPU
+    /// one wait, not one a net, and the first net's pass runs while the host issues the
+    /// next's).
     pub fn all_rotations_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
@@ -237,8 +239,17 @@ impl QNets {
             .flat_map(|&input| rotations.iter().map(move |&k| (input, k)))
             .collect();
         let per_input = rotations.len() * geometry.side() * geometry.side();
-        let mut maps = try_map(primitives, |primitive| {
-            let values = self.values(primitive, &items, geometry)?;
+        let passes = try_map(primitives, |primitive| {
+            self.q_maps(primitive, &items, geometry)
+        })?;
+        let read: [TensorData; N] = passes
+            .into_iter()
+            .fold(Transaction::default(), Transaction::register)
+            .execute()
+            .try_into()
+            .expect("one read a net");
+        let mut maps = try_map(read, |data| {
+            let values = data.try_into_vec::<f32>().expect("Q maps are f32");
             Ok(values
                 .chunks_exact(per_input)
                 .map(|one| q_maps(geometry, one.to_vec()))
