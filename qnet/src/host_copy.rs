@@ -12,11 +12,13 @@ use burn::tensor::{TensorData, Transaction};
 /// `module` with its float tensors (all the nets hold) on `device`, each in the form its
 /// record saves, read from wherever they are in one transaction. The copy is for reading
 /// (a record, bytes): it keeps no gradients.
-pub(crate) fn copied_to<M: Module + Clone>(module: &M, device: &Device) -> M {
+pub(crate) fn copied_to<M: Module>(module: &M, device: &Device) -> M {
     let mut reads = Reads::default();
     module.visit(&mut reads);
     let data = reads.0.execute().into_iter();
-    module.clone().map(&mut Placed {
+    // Mapped from `valid()`, not a clone: a clone shares its batch norms' running statistics
+    // with `module`, and mapping them would move `module`'s own.
+    module.valid().map(&mut Placed {
         data,
         device: device.clone(),
     })

@@ -499,6 +499,20 @@ mod tests {
         let copy = copied_to(&trained, &device);
         assert!(!copy.device().is_autodiff());
         assert_eq!(copy.to_bytes().unwrap(), nets.to_bytes().unwrap());
+        // The nets copied from are left as they were, batch norms' running statistics too
+        // (which a module's clones share).
+        let mut left = AllAutodiff(true);
+        trained.visit(&mut left);
+        assert!(left.0, "a tensor of the nets copied from moved");
+    }
+
+    /// Whether every float tensor of a module is on an autodiff device.
+    struct AllAutodiff(bool);
+
+    impl burn::module::ModuleVisitor for AllAutodiff {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0 &= param.val().device().is_autodiff();
+        }
     }
 
     #[test]
