@@ -6,6 +6,7 @@ use sim::{Primitive, ROTATIONS};
 
 use policy::QMaps;
 
+use crate::channels_last::with_weights_channels_last;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
 use crate::inference::Inference;
@@ -21,12 +22,13 @@ pub enum ActingNets {
 
 impl ActingNets {
     /// `nets` (in inference form: no autodiff, batch norms on their running statistics) as
-    /// they act on their device.
+    /// they act on their device: on a GPU with their convolution weights laid out once as
+    /// its convolutions read them ([`crate::channels_last`]).
     pub fn new(nets: &QNets) -> Result<Self, QNetError> {
         Ok(if nets.device() == Device::flex() {
             ActingNets::Cpu(Box::new(Inference::new(nets)?))
         } else {
-            ActingNets::Device(Box::new(nets.clone()))
+            ActingNets::Device(Box::new(with_weights_channels_last(nets.clone())))
         })
     }
 

@@ -12,6 +12,7 @@
 pub mod acting;
 pub mod agreement;
 pub mod batch_norm;
+mod channels_last;
 pub mod config;
 pub mod device;
 pub mod equivariant;

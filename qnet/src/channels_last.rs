@@ -1,0 +1,80 @@
+//! Convolution weights kept channels-last on a GPU, for nets that act.
+//!
+//! burn-cubecl convolves with its weights laid out `[out, kh, kw, in]` and copies a weight
+//! kept as burn keeps it, `[out, in, kh, kw]`, before every call: with the stage nets, 24
+//! of the 94 kernels of a decision (both nets, 16 rotations; counted on lavapipe). The
+//! nets an actor acts with do not change between loads of their weights, so each weight of
+//! a kernel wider than one pixel is copied once, there: the same tensor, of the same shape,
+//! its memory channels-last, which the convolution then reads as it lies.
+
+use burn::module::{Module, ModuleMapper, Param};
+use burn::prelude::*;
+
+/// `nets` with every convolution weight of a kernel wider than one pixel held
+/// channels-last (a 1x1 kernel's is channels-last already); the rest as it is. For nets in
+/// inference form: a weight comes out without gradient.
+pub(crate) fn with_weights_channels_last<M: Module>(nets: M) -> M {
+    nets.map(&mut ChannelsLast)
+}
+
+struct ChannelsLast;
+
+impl ModuleMapper for ChannelsLast {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let dims = param.dims();
+        if D != 4 || dims[2] * dims[3] == 1 {
+            return param;
+        }
+        let [to, back] = [[0, 2, 3, 1], [0, 3, 1, 2]].map(|axes: [usize; 4]| {
+            let mut all = [0; D];
+            all.copy_from_slice(&axes);
+            all
+        });
+        // Flattened and shaped back: a permuted view is laid out anew only when made
+        // contiguous, which a reshape of it does.
+        let channels_last = param.val().permute(to);
+        let shape = channels_last.dims();
+        let flat: Tensor<1> = channels_last.reshape([dims.iter().product::<usize>()]);
+        Param::initialized(param.id, flat.reshape(shape).permute(back))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{QNetConfig, QNets};
+
+    /// Every float tensor of a module's values and shape, in visiting order.
+    #[derive(Default)]
+    struct Values(Vec<(Vec<usize>, Vec<f32>)>);
+
+    impl burn::module::ModuleVisitor for Values {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let tensor = param.val();
+            let values = tensor.clone().into_data().try_to_vec::<f32>().unwrap();
+            self.0.push((tensor.dims().to_vec(), values));
+        }
+    }
+
+    fn values(nets: &QNets) -> Vec<(Vec<usize>, Vec<f32>)> {
+        let mut values = Values::default();
+        nets.visit(&mut values);
+        values.0
+    }
+
+    #[test]
+    fn weights_laid_out_channels_last_keep_their_shapes_and_values() {
+        let config = QNetConfig {
+            context_dilations: vec![1, 2],
+            ..QNetConfig::default()
+        };
+        let nets = QNets::new(&config, &Device::flex());
+        let before = values(&nets);
+        assert!(
+            before
+                .iter()
+                .any(|(dims, _)| dims.len() == 4 && dims[2] == 3)
+        );
+        assert_eq!(values(&with_weights_channels_last(nets)), before);
+    }
+}
