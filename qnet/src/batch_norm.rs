@@ -266,10 +266,12 @@ mod composed {
 
     /// Mean, then biased variance about it (two passes, as the CPU's loops).
     pub fn statistics<B: Backend>(x: FloatTensor<B>) -> (FloatTensor<B>, FloatTensor<B>) {
-        // Each value takes its share before the sum: fusion joins that with the reduction's
-        // read, where a division after it ran as a kernel of its own.
+        // The mean is scaled after its sum: burn's fusion does not join element-wise
+        // operations with a reduction over several dimensions, so a scaling just before the
+        // sum ran as a kernel of its own, where after it it joins the next kernel. The
+        // variance's share is taken in the kernel that squares, before its sum.
         let share = Scalar::Float(1.0 / count(&x.shape()) as f64);
-        let mean = channel_sums::<B>(B::float_mul_scalar(x.clone(), share));
+        let mean = B::float_mul_scalar(channel_sums::<B>(x.clone()), share);
         let centred = B::float_sub(x, mean.clone());
         let squares = B::float_mul(centred.clone(), centred);
         let variance = channel_sums::<B>(B::float_mul_scalar(squares, share));
@@ -307,8 +309,11 @@ mod composed {
         let gamma = per_channel::<B>(gamma, &x);
         let dy = B::relu_backward(output, grad);
         let x_hat = B::float_mul(B::float_sub(x, mean), inv_std.clone());
+        // Both sums' operands formed before either sum: an element-wise operation issued
+        // between two reductions runs as a kernel of its own.
+        let dy_x_hat = B::float_mul(dy.clone(), x_hat.clone());
         let sum_dy = channel_sums::<B>(dy.clone());
-        let sum_dy_x_hat = channel_sums::<B>(B::float_mul(dy.clone(), x_hat.clone()));
+        let sum_dy_x_hat = channel_sums::<B>(dy_x_hat);
         let factor = B::float_div_scalar(B::float_mul(gamma, inv_std), Scalar::Float(n));
         let inner = B::float_sub(
             B::float_sub(B::float_mul_scalar(dy, Scalar::Float(n)), sum_dy.clone()),
