@@ -10,7 +10,7 @@ use std::sync::{Mutex, MutexGuard};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use learner::{Checkpoint, LearningConfig, Manifest, Sample, SavedNets, TrainedNet, Trainer};
-use qnet::{Backend, Difference, NetInput, QNetConfig, QNets};
+use qnet::{ActingNets, Backend, Difference, NetInput, QNetConfig, QNets};
 use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
 
 mod common;
@@ -107,12 +107,14 @@ fn on(device: &Device, net: &QNetConfig, nets: &QNets) -> QNets {
 
 /// Both nets' Q maps over all 16 rotations, `ours` against `reference`: of `input`, and of
 /// it together with its mirror image in one batch (each input sent once and rotated on the
-/// device).
+/// device) as an actor runs them (on a device, their convolution weights laid out
+/// channels-last).
 fn maps_agree(ours: &QNets, reference: &QNets, net: &QNetConfig, input: &NetInput, what: &str) {
     let geometry = qnet::Geometry::new(input.side, net);
     let mirror = input.mirrored();
     let primitives = [Primitive::Push, Primitive::Grasp];
-    let batch = ours
+    let batch = ActingNets::new(ours)
+        .unwrap()
         .all_rotations_of_each(primitives, &[input, &mirror], &geometry)
         .unwrap();
     for (i, primitive) in primitives.into_iter().enumerate() {
