@@ -533,8 +533,11 @@ fn train_step_ms(
 }
 
 /// The median time of `reps` publications of the trainer's nets as bytes: what the learner
-/// sends the actors after every update at `publish_every = 1`.
+/// sends the actors after every update at `publish_every = 1`. An untimed one first: on a
+/// GPU it waits for the work still queued (the last step's backward pass), which is the
+/// step's, not the publication's.
 fn publish_ms(trainer: &learner::Trainer, reps: usize) -> Result<f64> {
+    trainer.published_nets().to_bytes()?;
     let times = (0..reps)
         .map(|_| {
             let (bytes, time) = timed(|| trainer.published_nets().to_bytes());
