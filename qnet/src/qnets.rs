@@ -116,9 +116,15 @@ impl QNets {
             geometry.add_pixel_weights(turn, pixel, item);
         }
         let weights = Tensor::<4>::from_data(TensorData::new(weights, [n, 1, s, s]), &low.device());
-        let values = (low * weights).sum_dim(3).sum_dim(2).reshape([n, heads]);
+        let values = (low * weights).sum_dim(3).sum_dim(2);
+        if heads == 1 {
+            // No slice: its backward fills a zero gradient and assigns into it (two kernels
+            // on a GPU) for what is the whole tensor.
+            return Ok((values.reshape([n]), None));
+        }
+        let values = values.reshape([n, heads]);
         let head = |h: usize| values.clone().slice([0..n, h..h + 1]).reshape([n]);
-        Ok((head(0), (heads == 2).then(|| head(1))))
+        Ok((head(0), Some(head(1))))
     }
 
     /// The maps `[n, channels, side, side]` of one primitive's items: the Q value's, then
