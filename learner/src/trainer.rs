@@ -7,7 +7,6 @@
 //! added. Every other pixel contributes nothing.
 
 use burn::module::Module;
-use burn::nn::loss::HuberLossConfig;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
@@ -453,16 +452,19 @@ fn items<'a>(
 }
 
 /// The weighted Huber loss of the Q values at the executed pixels against their labels,
-/// summed.
+/// summed. Each residual's loss as `c (|r| - c / 2)` with `c = min(|r|, delta)`: `r^2 / 2`
+/// within delta, `delta (|r| - delta / 2)` past it, as burn's `HuberLoss`, whose two-sided
+/// clamp and selection made its forward 12 kernels on a GPU where this one makes 7.
 pub fn executed_pixel_loss(
     q: Tensor<1>,
     labels: &[f32],
     weights: &[f32],
     huber_delta: f32,
 ) -> Tensor<1> {
-    let tensor = |values: &[f32]| per_item(values, &q);
-    let huber = HuberLossConfig::new(huber_delta).init();
-    (huber.forward_no_reduction(q.clone(), tensor(labels)) * tensor(weights)).sum()
+    let size = (q.clone() - per_item(labels, &q)).abs();
+    let capped = size.clone().clamp_max(huber_delta);
+    let huber = capped.clone() * (size - capped.mul_scalar(0.5));
+    (huber * per_item(weights, &q)).sum()
 }
 
 /// The weighted cross-entropy of the outcome logits at the executed pixels against
