@@ -6,7 +6,7 @@ use sim::{Primitive, ROTATIONS};
 
 use policy::QMaps;
 
-use crate::channels_last::with_weights_channels_last;
+use crate::channels_last::for_acting;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
 use crate::inference::Inference;
@@ -23,12 +23,16 @@ pub enum ActingNets {
 impl ActingNets {
     /// `nets` (in inference form: no autodiff, batch norms on their running statistics) as
     /// they act on their device: on a GPU with their convolution weights laid out once as
-    /// its convolutions read them ([`crate::channels_last`]).
+    /// its convolutions read them ([`crate::channels_last`]; an equivariant net's as they
+    /// are).
     pub fn new(nets: &QNets) -> Result<Self, QNetError> {
         Ok(if nets.device() == Device::flex() {
             ActingNets::Cpu(Box::new(Inference::new(nets)?))
         } else {
-            ActingNets::Device(Box::new(with_weights_channels_last(nets.clone())))
+            ActingNets::Device(Box::new(QNets {
+                push: for_acting(&nets.push),
+                grasp: for_acting(&nets.grasp),
+            }))
         })
     }
 

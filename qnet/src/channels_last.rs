@@ -10,10 +10,23 @@
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 
+use crate::net::PrimitiveNet;
+
+/// `net` (in inference form) as it acts on a GPU: its weights channels-last. A
+/// rotation-equivariant net is left as it is: it builds its full kernels from its base ones
+/// before every convolution, so a layout of the base kernels would only add a copy.
+pub(crate) fn for_acting(net: &PrimitiveNet) -> PrimitiveNet {
+    if net.group() == 1 {
+        with_weights_channels_last(net.clone())
+    } else {
+        net.clone()
+    }
+}
+
 /// `nets` with every convolution weight of a kernel wider than one pixel held
-/// channels-last (a 1x1 kernel's is channels-last already); the rest as it is. For nets in
-/// inference form: a weight comes out without gradient.
-pub(crate) fn with_weights_channels_last<M: Module>(nets: M) -> M {
+/// channels-last (a 1x1 kernel's is channels-last already); the rest as it is. A weight
+/// comes out without gradient.
+fn with_weights_channels_last<M: Module>(nets: M) -> M {
     nets.map(&mut ChannelsLast)
 }
 
