@@ -279,17 +279,7 @@ impl QNets {
         geometry: &Geometry,
     ) -> Result<Vec<f32>, QNetError> {
         let items: Vec<(&NetInput, u8)> = rotations.iter().map(|&k| (input, k)).collect();
-        self.values(primitive, &items, geometry)
-    }
-
-    /// [`Self::q_maps`] read back, one `side x side` map after another.
-    fn values(
-        &self,
-        primitive: Primitive,
-        items: &[(&NetInput, u8)],
-        geometry: &Geometry,
-    ) -> Result<Vec<f32>, QNetError> {
-        let maps = self.q_maps(primitive, items, geometry)?;
+        let maps = self.q_maps(primitive, &items, geometry)?;
         Ok(maps
             .into_data()
             .try_to_vec::<f32>()
