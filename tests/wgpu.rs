@@ -107,7 +107,7 @@ fn on(device: &Device, net: &QNetConfig, nets: &QNets) -> QNets {
 
 /// Both nets' Q maps over all 16 rotations, `ours` against `reference`: of `input`, and of
 /// it together with its mirror image in one batch (each input sent once and rotated on the
-/// device) as an actor runs them (on a device, their convolution weights laid out
+/// device) as an actor runs them (on a device, laid out in full, their convolution weights
 /// channels-last).
 fn maps_agree(ours: &QNets, reference: &QNets, net: &QNetConfig, input: &NetInput, what: &str) {
     let geometry = qnet::Geometry::new(input.side, net);

@@ -22,9 +22,8 @@ pub enum ActingNets {
 
 impl ActingNets {
     /// `nets` (in inference form: no autodiff, batch norms on their running statistics) as
-    /// they act on their device: on a GPU with their convolution weights laid out once as
-    /// its convolutions read them ([`crate::channels_last`]; an equivariant net's as they
-    /// are).
+    /// they act on their device: on a GPU laid out in full once, with their convolution
+    /// weights as its convolutions read them ([`crate::channels_last`]).
     pub fn new(nets: &QNets) -> Result<Self, QNetError> {
         Ok(if nets.device() == Device::flex() {
             ActingNets::Cpu(Box::new(Inference::new(nets)?))

@@ -5,22 +5,20 @@
 //! of the 94 kernels of a decision (both nets, 16 rotations; counted on lavapipe). The
 //! nets an actor acts with do not change between loads of their weights, so each weight of
 //! a kernel wider than one pixel is copied once, there: the same tensor, of the same shape,
-//! its memory channels-last, which the convolution then reads as it lies.
+//! its memory channels-last, which the convolution then reads as it lies. A
+//! rotation-equivariant net is first laid out in full, once, instead of building its full
+//! kernels from its base ones before every convolution (608 kernels a decision of the
+//! equivariant stage nets).
 
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 
 use crate::net::PrimitiveNet;
 
-/// `net` (in inference form) as it acts on a GPU: its weights channels-last. A
-/// rotation-equivariant net is left as it is: it builds its full kernels from its base ones
-/// before every convolution, so a layout of the base kernels would only add a copy.
+/// `net` (in inference form) as it acts on a GPU: laid out in full (an equivariant net as
+/// an ordinary one computing the same maps), its weights channels-last.
 pub(crate) fn for_acting(net: &PrimitiveNet) -> PrimitiveNet {
-    if net.group() == 1 {
-        with_weights_channels_last(net.clone())
-    } else {
-        net.clone()
-    }
+    with_weights_channels_last(net.expanded())
 }
 
 /// `nets` with every convolution weight of a kernel wider than one pixel held
@@ -54,7 +52,12 @@ impl ModuleMapper for ChannelsLast {
 
 #[cfg(test)]
 mod tests {
+    use burn::tensor::Distribution;
+    use sim::Primitive;
+
     use super::*;
+    use crate::geometry::Geometry;
+    use crate::testing::{assert_close, patterned_input};
     use crate::{QNetConfig, QNets};
 
     /// Every float tensor of a module's values and shape, in visiting order.
@@ -89,5 +92,48 @@ mod tests {
                 .any(|(dims, _)| dims.len() == 4 && dims[2] == 3)
         );
         assert_eq!(values(&with_weights_channels_last(nets)), before);
+    }
+
+    #[test]
+    fn nets_laid_out_to_act_give_their_own_maps_an_equivariant_nets_included() {
+        let side = 16;
+        let input = patterned_input(side);
+        for rotation_equivariant in [false, true] {
+            let config = QNetConfig {
+                trunk_widths: vec![4, 8],
+                context_dilations: vec![1],
+                head_width: 8,
+                rotation_equivariant,
+                ..QNetConfig::default()
+            };
+            let geometry = Geometry::new(side, &config);
+            // One step in training first, so the batch norms' running statistics (which
+            // an equivariant net shares within a field) are not their initial ones.
+            let device = Device::flex().autodiff();
+            let trained = QNets::new(&config, &device);
+            let p = geometry.padded();
+            let planes =
+                |channels| Tensor::<4>::random([2, channels, p, p], Distribution::Default, &device);
+            for net in [&trained.push, &trained.grasp] {
+                net.forward(planes(3), planes(1), planes(1));
+            }
+            let nets = trained.valid();
+            let acting = QNets {
+                push: for_acting(&nets.push),
+                grasp: for_acting(&nets.grasp),
+            };
+            assert_eq!(acting.grasp.group(), 1);
+            let primitives = [Primitive::Push, Primitive::Grasp];
+            let [ours] = acting
+                .all_rotations_of_each(primitives, &[&input], &geometry)
+                .unwrap()
+                .try_into()
+                .unwrap();
+            for (maps, primitive) in ours.iter().zip(primitives) {
+                let theirs = nets.all_rotations(primitive, &input, &geometry).unwrap();
+                let what = format!("equivariant {rotation_equivariant}: {primitive:?}");
+                assert_close(maps.values(), theirs.values(), 1e-5, &what);
+            }
+        }
     }
 }

@@ -55,4 +55,23 @@ mod testing {
             d.max_rel
         );
     }
+
+    /// A `side x side` input of varied values in [-1, 1] with a binary mask, no scene needed.
+    pub fn patterned_input(side: usize) -> crate::NetInput {
+        let plane = |planes: usize| {
+            let n = planes * side * side;
+            (0..n)
+                .map(|i| ((i * 7919) % 101) as f32 / 50.0 - 1.0)
+                .collect()
+        };
+        crate::NetInput {
+            side,
+            colour: plane(3),
+            depth: plane(1),
+            mask: plane(1)
+                .into_iter()
+                .map(|v: f32| f32::from(v > 0.0))
+                .collect(),
+        }
+    }
 }

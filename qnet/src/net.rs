@@ -285,9 +285,16 @@ impl PrimitiveNet {
         }
     }
 
-    /// Channels a field: each pass scores this many action angles a quarter turn apart.
+    /// Channels a field of its layers: 1 in an ordinary net, and in an equivariant net
+    /// laid out in full ([`Self::expanded`]).
     pub fn group(&self) -> usize {
         self.group
+    }
+
+    /// The action angles a quarter turn apart that one pass scores: the Q maps of its
+    /// output, one a field's channel (the same in the net laid out in full).
+    pub fn angles_per_pass(&self) -> usize {
+        self.head_out.weight.dims()[0] * self.group
     }
 
     /// Starts the head afresh, as a new net's, keeping the trunks (pretrained on another
@@ -494,6 +501,10 @@ mod tests {
         check(&frozen, "frozen");
         let ordinary = frozen.expanded();
         assert_eq!(ordinary.group(), 1);
+        assert_eq!(
+            [ordinary.angles_per_pass(), frozen.angles_per_pass()],
+            [4, 4]
+        );
         assert_close(
             &values(forward(&ordinary, false)),
             &values(forward(&frozen, false)),

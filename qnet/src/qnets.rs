@@ -172,13 +172,14 @@ impl QNets {
     ) -> Result<(Tensor<4>, Vec<u8>), QNetError> {
         let device = self.device();
         let net = self.net(primitive);
+        let angles = net.angles_per_pass();
         let s = geometry.low_side();
         // The passes (input, input rotation) and each item's (pass, output channel).
         let mut passes: Vec<(&NetInput, u8)> = Vec::new();
         let mut picks = Vec::with_capacity(items.len());
         for &(input, rotation) in items {
             geometry.check(input, rotation)?;
-            let (turn, channel) = equivariant::pass_and_channel(rotation, net.group());
+            let (turn, channel) = equivariant::pass_and_channel(rotation, angles);
             let same = |&(other, t): &(&NetInput, u8)| std::ptr::eq(other, input) && t == turn;
             let pass = passes.iter().position(same).unwrap_or_else(|| {
                 passes.push((input, turn));
@@ -195,11 +196,11 @@ impl QNets {
         };
         // Each item's channel of each head (Q, then outcome).
         let channels = low.dims()[1];
-        let heads = channels / net.group();
+        let heads = channels / angles;
         let rows: Vec<i64> = picks
             .iter()
             .flat_map(|&(pass, channel)| {
-                (0..heads).map(move |head| (pass * channels + head * net.group() + channel) as i64)
+                (0..heads).map(move |head| (pass * channels + head * angles + channel) as i64)
             })
             .collect();
         let n = items.len();
@@ -327,26 +328,7 @@ mod tests {
     use burn::tensor::Distribution;
 
     use super::*;
-    use crate::testing::assert_close;
-
-    /// A `side x side` input of varied values in [-1, 1] with a binary mask, no scene needed.
-    fn patterned_input(side: usize) -> NetInput {
-        let plane = |planes: usize| {
-            let n = planes * side * side;
-            (0..n)
-                .map(|i| ((i * 7919) % 101) as f32 / 50.0 - 1.0)
-                .collect()
-        };
-        NetInput {
-            side,
-            colour: plane(3),
-            depth: plane(1),
-            mask: plane(1)
-                .into_iter()
-                .map(|v: f32| f32::from(v > 0.0))
-                .collect(),
-        }
-    }
+    use crate::testing::{assert_close, patterned_input};
 
     #[test]
     fn values_at_pixels_and_their_gradients_are_the_full_maps_at_those_pixels() {
