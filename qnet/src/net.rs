@@ -265,8 +265,12 @@ impl PrimitiveNet {
     }
 
     /// This net as an ordinary one (one channel a field, every weight laid out) computing
-    /// the same function in inference: what other engines are built from.
+    /// the same function in inference: what other engines are built from. An ordinary net
+    /// is itself.
     pub fn expanded(&self) -> Self {
+        if self.group == 1 {
+            return self.clone();
+        }
         let groups = [self.group; 2];
         Self {
             colour: self.colour.expanded(),
