@@ -1,7 +1,8 @@
 //! The GPU path (burn-wgpu) against the CPU backend on this machine's adapter — Mesa's
 //! software Vulkan (lavapipe) where there is no GPU, as in CI: the same Q maps from the
 //! same weights, the same training step, checkpoints that move between the two, and a real
-//! run with its learner on wgpu. Built with `--features wgpu` alone (`make test` runs it).
+//! run with its learner on wgpu, and machines refused before a run starts. Built with
+//! `--features wgpu` alone (`make test-gpu` runs it).
 //! Speed is no target here: lavapipe multiplies at about 2 GFLOP/s.
 #![cfg(feature = "wgpu")]
 
@@ -380,11 +381,11 @@ fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
     assert!(refused.contains("cpu or wgpu"), "{refused}");
 }
 
-#[test]
-fn a_machine_without_an_adapter_is_refused_before_anything_starts() {
+/// What `train` with its actors on wgpu says, under `env`, when it is refused before
+/// anything starts (no run directory made).
+fn refused_with(env: &[(&str, &str)]) -> String {
     let _turn = device_turn();
     let logs = tempfile::tempdir().unwrap();
-    // No Vulkan driver, no EGL vendor: wgpu finds no adapter at all.
     let output = std::process::Command::new(env!("CARGO_BIN_EXE_pushgrasp"))
         .args([
             "train",
@@ -395,23 +396,44 @@ fn a_machine_without_an_adapter_is_refused_before_anything_starts() {
             "--logs",
         ])
         .arg(logs.path())
-        .env("VK_ICD_FILENAMES", "/nonexistent.json")
-        .env("__EGL_VENDOR_LIBRARY_FILENAMES", "/nonexistent.json")
+        .envs(env.iter().copied())
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    let error = String::from_utf8_lossy(&output.stderr);
+    let error = String::from_utf8_lossy(&output.stderr).into_owned();
     assert!(!output.status.success());
     assert!(
         error.contains("backend.actors = \"wgpu\" (--backend)"),
         "{error}"
     );
-    // What to install: the loader, NVIDIA's driver's dependency, and the software device.
-    for package in ["libvulkan1", "libglvnd0", "mesa-vulkan-drivers"] {
-        assert!(error.contains(package), "{package}: {error}");
-    }
     assert!(
         !logs.path().join("none").exists(),
         "a run directory was made"
     );
+    error
+}
+
+#[test]
+fn a_machine_without_an_adapter_is_refused_before_anything_starts() {
+    // No Vulkan driver, no EGL vendor: wgpu finds no adapter at all.
+    let error = refused_with(&[
+        ("VK_ICD_FILENAMES", "/nonexistent.json"),
+        ("__EGL_VENDOR_LIBRARY_FILENAMES", "/nonexistent.json"),
+    ]);
+    // What to install: the loader, NVIDIA's driver's dependency, and the software device.
+    for package in ["libvulkan1", "libglvnd0", "mesa-vulkan-drivers"] {
+        assert!(error.contains(package), "{package}: {error}");
+    }
+}
+
+#[test]
+fn an_adapter_chosen_that_the_machine_lacks_is_refused_naming_the_choice() {
+    // The variable, not the machine's drivers, is what to check.
+    let error = refused_with(&[("CUBECL_WGPU_DEFAULT_DEVICE", "DiscreteGpu(7)")]);
+    assert!(
+        error.contains("CUBECL_WGPU_DEFAULT_DEVICE=\"DiscreteGpu(7)\" chooses the adapter"),
+        "{error}"
+    );
+    assert!(error.contains("IntegratedGpu(N)"), "{error}");
+    assert!(!error.contains("libvulkan1"), "{error}");
 }

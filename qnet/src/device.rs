@@ -132,14 +132,9 @@ mod gpu {
                     let _ = <CubeClRuntimeConfig as RuntimeConfig>::get();
                     burn::cubecl::environment::set_root(dir);
                 }
-                let (device, setup) = Device::wgpu_options().init_with_setup().map_err(|e| {
-                    format!(
-                        "{e}. Install the Vulkan loader (Debian's `libvulkan1`) and the \
-                         GPU's Vulkan driver (NVIDIA's loads through libglvnd: `libglvnd0`), \
-                         or for a software device Mesa's lavapipe (`mesa-vulkan-drivers`); \
-                         or use the cpu backend"
-                    )
-                })?;
+                let (device, setup) = Device::wgpu_options()
+                    .init_with_setup()
+                    .map_err(|e| format!("{e}. {}", what_to_do()))?;
                 let info = setup.adapter.get_info();
                 if info.device_type == burn::cubecl::wgpu::wgpu::DeviceType::Cpu
                     && std::env::var_os("PUSHGRASP_TUNE_SOFTWARE").is_none()
@@ -165,6 +160,25 @@ mod gpu {
             })
             .clone()
             .map_err(QNetError::Backend)
+    }
+
+    /// CubeCL's variable that chooses the adapter instead of wgpu's high-performance one.
+    const ADAPTER_VAR: &str = "CUBECL_WGPU_DEFAULT_DEVICE";
+
+    /// What to do when no device opened: with the adapter chosen by [`ADAPTER_VAR`], what it
+    /// takes (its value, not the machine, is what to check first); else what to install.
+    fn what_to_do() -> String {
+        match std::env::var(ADAPTER_VAR) {
+            Ok(value) => format!(
+                "{ADAPTER_VAR}={value:?} chooses the adapter: it takes DiscreteGpu(N), \
+                 IntegratedGpu(N), VirtualGpu(N) or Other(N), N counted from 0 among the \
+                 adapters of that kind, or Cpu; unset, wgpu's high-performance adapter"
+            ),
+            Err(_) => "Install the Vulkan loader (Debian's `libvulkan1`) and the GPU's Vulkan \
+                       driver (NVIDIA's loads through libglvnd: `libglvnd0`), or for a software \
+                       device Mesa's lavapipe (`mesa-vulkan-drivers`); or use the cpu backend"
+                .to_string(),
+        }
     }
 }
 
