@@ -178,58 +178,62 @@ fn one_training_step_gives_the_cpus_loss_and_weights() {
     let _turn = device_turn();
     let gpu = gpu();
     let input = scene_input(1);
-    let [_, net, _] = net_shapes();
-    let start = trained_on_cpu(&net, &input);
-    let batch = samples(&input, 4);
-    let mut on_cpu = trainer(start.clone(), &net, input.side, &Device::flex());
-    let mut on_gpu = trainer(on(&gpu, &net, &start), &net, input.side, &gpu);
-    let cpu_step = on_cpu.train_step(&batch).unwrap();
-    let gpu_step = on_gpu.train_step(&batch).unwrap();
-    let loss = Difference::between(&[gpu_step.loss], &[cpu_step.loss]);
-    println!(
-        "loss: cpu {}, wgpu {}, relative difference {:e}",
-        cpu_step.loss, gpu_step.loss, loss.max_rel
-    );
-    assert!(loss.max_rel <= AGREEMENT, "loss: {loss:?}");
-    let q = Difference::between(&gpu_step.predicted, &cpu_step.predicted);
-    assert!(q.max_rel <= AGREEMENT, "predicted Q: {q:?}");
-    // The weights after the step. Adam's first step moves a weight by about the learning
-    // rate whatever its gradient's size, so a gradient below the two backends' rounding
-    // steps either way: each weight must be within two steps (and 1e-3 of its tensor's
-    // scale) of the CPU's, and those stepping the other way must be a rare few.
-    let lr = LearningConfig::default().learning_rate as f32;
-    let (before, cpu_after, gpu_after) = (
-        floats(&start),
-        floats(&on_cpu.published_nets()),
-        floats(&on_gpu.published_nets()),
-    );
-    assert_eq!(cpu_after.len(), gpu_after.len());
-    let (mut moved, mut reversed, mut total) = (0, 0, 0);
-    for ((was, cpu), gpu) in before.iter().zip(&cpu_after).zip(&gpu_after) {
-        let scale = cpu.iter().fold(0f32, |m, w| m.max(w.abs()));
-        for ((w, c), g) in was.iter().zip(cpu).zip(gpu) {
-            assert!(
-                (c - g).abs() <= 2.0 * lr + AGREEMENT * scale,
-                "a weight went from {w} to {c} on the cpu, to {g} on wgpu"
-            );
-            total += 1;
-            moved += usize::from(c != w);
-            reversed += usize::from((c - w) * (g - w) < 0.0);
+    // The stage nets, and the same rotation-equivariant, whose weights are gathered from
+    // their base kernels (the gradient summing each one's copies).
+    let [_, stage, equivariant] = net_shapes();
+    for net in [stage, equivariant] {
+        let start = trained_on_cpu(&net, &input);
+        let batch = samples(&input, 4);
+        let mut on_cpu = trainer(start.clone(), &net, input.side, &Device::flex());
+        let mut on_gpu = trainer(on(&gpu, &net, &start), &net, input.side, &gpu);
+        let cpu_step = on_cpu.train_step(&batch).unwrap();
+        let gpu_step = on_gpu.train_step(&batch).unwrap();
+        let loss = Difference::between(&[gpu_step.loss], &[cpu_step.loss]);
+        println!(
+            "loss: cpu {}, wgpu {}, relative difference {:e}",
+            cpu_step.loss, gpu_step.loss, loss.max_rel
+        );
+        assert!(loss.max_rel <= AGREEMENT, "loss: {loss:?}");
+        let q = Difference::between(&gpu_step.predicted, &cpu_step.predicted);
+        assert!(q.max_rel <= AGREEMENT, "predicted Q: {q:?}");
+        // The weights after the step. Adam's first step moves a weight by about the learning
+        // rate whatever its gradient's size, so a gradient below the two backends' rounding
+        // steps either way: each weight must be within two steps (and 1e-3 of its tensor's
+        // scale) of the CPU's, and those stepping the other way must be a rare few.
+        let lr = LearningConfig::default().learning_rate as f32;
+        let (before, cpu_after, gpu_after) = (
+            floats(&start),
+            floats(&on_cpu.published_nets()),
+            floats(&on_gpu.published_nets()),
+        );
+        assert_eq!(cpu_after.len(), gpu_after.len());
+        let (mut moved, mut reversed, mut total) = (0, 0, 0);
+        for ((was, cpu), gpu) in before.iter().zip(&cpu_after).zip(&gpu_after) {
+            let scale = cpu.iter().fold(0f32, |m, w| m.max(w.abs()));
+            for ((w, c), g) in was.iter().zip(cpu).zip(gpu) {
+                assert!(
+                    (c - g).abs() <= 2.0 * lr + AGREEMENT * scale,
+                    "a weight went from {w} to {c} on the cpu, to {g} on wgpu"
+                );
+                total += 1;
+                moved += usize::from(c != w);
+                reversed += usize::from((c - w) * (g - w) < 0.0);
+            }
         }
+        println!("weights: {moved} of {total} moved; {reversed} the other way on wgpu");
+        assert!(moved > 0, "the step moved no weight");
+        assert!(
+            reversed * 100 < moved,
+            "{reversed} of {moved} weights stepped the other way"
+        );
+        maps_agree(
+            &on_gpu.published_nets(),
+            &on_cpu.published_nets(),
+            &net,
+            &input,
+            "after one step, wgpu vs cpu",
+        );
     }
-    println!("weights: {moved} of {total} moved; {reversed} the other way on wgpu");
-    assert!(moved > 0, "the step moved no weight");
-    assert!(
-        reversed * 100 < moved,
-        "{reversed} of {moved} weights stepped the other way"
-    );
-    maps_agree(
-        &on_gpu.published_nets(),
-        &on_cpu.published_nets(),
-        &net,
-        &input,
-        "after one step, wgpu vs cpu",
-    );
 }
 
 #[test]

@@ -483,7 +483,7 @@ mod tests {
         let net = PrimitiveNet::new(&config, false, &device);
         let input = |c| Tensor::<4>::random([2, c, 17, 17], Distribution::Default, &device);
         let planes = [input(3), input(1), input(1)];
-        let turn = crate::equivariant::quarter_turn::<4>;
+        let turn = crate::equivariant::quarter_turn::<4, Float>;
         let values = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
         let forward = |net: &PrimitiveNet, turned: bool| {
             let on = net.devices()[0].clone();
