@@ -278,8 +278,9 @@ mod composed {
         (flat::<B>(mean), flat::<B>(variance))
     }
 
-    /// The normalisation with the batch's statistics and the ReLU: burn's batch norm and
-    /// ReLU.
+    /// The normalisation with the batch's statistics and the ReLU, as one affine map per
+    /// channel: `relu(x * scale + shift)`, `scale = gamma / std` and `shift = beta - mean
+    /// scale` formed on the `[c]` values first.
     pub fn train<B: Backend>(
         x: FloatTensor<B>,
         gamma: FloatTensor<B>,
@@ -288,7 +289,15 @@ mod composed {
         variance: FloatTensor<B>,
         epsilon: f64,
     ) -> FloatTensor<B> {
-        B::relu(B::batch_norm(x, gamma, beta, mean, variance, epsilon))
+        let scale = B::float_mul(
+            per_channel::<B>(gamma, &x),
+            inverse_std::<B>(variance, epsilon, &x),
+        );
+        let shift = B::float_sub(
+            per_channel::<B>(beta, &x),
+            B::float_mul(per_channel::<B>(mean, &x), scale.clone()),
+        );
+        B::relu(B::float_add(B::float_mul(x, scale), shift))
     }
 
     /// With `x_hat` the normalised input and `dy` the output's gradient through the ReLU:
