@@ -400,6 +400,8 @@ fn refused_with(env: &[(&str, &str)]) -> String {
             "--logs",
         ])
         .arg(logs.path())
+        // The machine's own choice of adapter, if any, stays out: each test sets its own.
+        .env_remove("CUBECL_WGPU_DEFAULT_DEVICE")
         .envs(env.iter().copied())
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()

@@ -107,8 +107,8 @@ mod tests {
                 ..QNetConfig::default()
             };
             let geometry = Geometry::new(side, &config);
-            // One step in training first, so the batch norms' running statistics (which
-            // an equivariant net shares within a field) are not their initial ones.
+            // A forward pass in training first, so the batch norms' running statistics
+            // (which an equivariant net shares within a field) are not their initial ones.
             let device = Device::flex().autodiff();
             let trained = QNets::new(&config, &device);
             let p = geometry.padded();

@@ -42,8 +42,7 @@ pub fn quarter_turns<const D: usize, K: Basic>(x: Tensor<D, K>, turns: usize) ->
 /// are gathered in one selection by an index worked out once ([`expansion_index`]): a
 /// training step's every convolution lays its weights out anew, and the quarter turns and
 /// shifts one by one were about twenty kernels a convolution on a GPU, their gradients as
-/// many again (an equivariant stage step on lavapipe: 1,070 kernels so, 627 gathered; 330
-/// for the same nets without equivariance).
+/// many again (an equivariant stage step on lavapipe: 1,070 kernels so, 627 gathered).
 pub fn expand(base: Tensor<4>, groups: [usize; 2]) -> Tensor<4> {
     if groups[1] == 1 {
         return base;
@@ -70,9 +69,10 @@ fn expansion_index(shape: [usize; 2], groups: [usize; 2], device: &Device) -> Te
         return index.clone();
     }
     let [channels_in, k] = shape;
-    let n = (channels_in * k * k) as i64;
-    let numbered = Tensor::<1, Int>::arange(0..n, &Device::flex()).reshape([1, channels_in, k, k]);
-    let order: Tensor<1, Int> = laid_out(numbered, groups).reshape([n as usize * groups[1]]);
+    let n = channels_in * k * k;
+    let numbered =
+        Tensor::<1, Int>::arange(0..n as i64, &Device::flex()).reshape([1, channels_in, k, k]);
+    let order: Tensor<1, Int> = laid_out(numbered, groups).reshape([n * groups[1]]);
     let index = Tensor::from_data(order.into_data(), device);
     known.push((key, index.clone()));
     index
