@@ -158,7 +158,7 @@ fn signal(pid: i32, signal: &str) {
 #[test]
 fn two_actor_processes_over_shared_memory_lose_no_step() {
     let logs = logs();
-    train_ok(
+    let out = train_ok(
         logs.path(),
         &["--actors", "2", "--episodes", "16", "--run-id", "shm"],
     );
@@ -166,6 +166,8 @@ fn two_actor_processes_over_shared_memory_lose_no_step() {
     assert_eq!(summary["actors_reports"].as_array().unwrap().len(), 2);
     assert!(assert_lossless(logs.path(), "shm") >= 16);
     assert_cpu_times(&summary, true);
+    assert_learner_busy(&summary);
+    assert!(out.contains("a busy second)"), "{out}");
 }
 
 /// 64 actors: more than the shared-memory limits of a fixed size admitted (every actor past
@@ -251,6 +253,14 @@ fn assert_cpu_times(summary: &Value, own_processes: bool) {
         let most = (report[working].as_f64().unwrap() + 0.1) * cores;
         assert!(cpu_s > 0.0 && cpu_s <= most, "{cpu_s} CPU s in {report}");
     }
+}
+
+/// The learner's time updating is some of its working time, not more.
+fn assert_learner_busy(summary: &Value) {
+    let learner = &summary["learner"];
+    let busy_s = learner["busy_s"].as_f64().unwrap();
+    let training_s = learner["training_s"].as_f64().unwrap();
+    assert!(busy_s > 0.0 && busy_s <= training_s, "{learner}");
 }
 
 #[test]
@@ -612,7 +622,9 @@ fn two_actor_threads_over_channels_lose_no_step() {
         ],
     );
     assert!(assert_lossless(logs.path(), "threads") >= 16);
-    assert_cpu_times(&summary(logs.path(), "threads"), false);
+    let summary = summary(logs.path(), "threads");
+    assert_cpu_times(&summary, false);
+    assert_learner_busy(&summary);
 }
 
 #[test]

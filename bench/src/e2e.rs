@@ -2,7 +2,9 @@
 //! shared memory) with 1, 2 and 4 environments, each in an actor process of its own or K to
 //! a process (`--envs-per-actor`); actions per second summed over the environments (each
 //! one's actions over its own acting time, so process start-up is left out) and the
-//! learner's updates per second, read from the runs' reports; what an action and an update
+//! learner's updates per second, the share of its time it spent updating (the rest it waited
+//! on the actors) and its updates per second of that time, read from the runs' reports;
+//! what an action and an update
 //! cost in CPU time (each role's process over the same time), which leaves out the time a
 //! role waits: on the rate limiter, or for a core the other roles hold; and the actors'
 //! peak resident memory per environment.
@@ -15,6 +17,7 @@ use clap::Args;
 use serde_json::{Map, Value};
 
 use super::print_figures;
+use runtime::learner::LearnerReport;
 use runtime::{RunDir, read_json};
 
 #[derive(Args)]
@@ -61,14 +64,21 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
             1 => format!("_{environments}"),
             k => format!("_{environments}_k{k}"),
         };
-        let learner = &summary["learner"];
-        let updates = learner["session_updates"].as_f64().unwrap_or(0.0);
-        let updates_per_s = updates / learner["training_s"].as_f64().unwrap_or(1.0).max(1e-9);
+        let learner: LearnerReport = serde_json::from_value(summary["learner"].clone())
+            .context("the learner's report in the run's summary")?;
         let mut put = |name: &str, value: f64| {
             figures.insert(format!("{name}{suffix}"), round(value));
         };
         put("actions_per_s", actions_per_s(&summary));
-        put("learner_updates_per_s", updates_per_s);
+        put(
+            "learner_updates_per_s",
+            learner.updates_per_s().unwrap_or(0.0),
+        );
+        put("learner_busy_share", learner.busy_share().unwrap_or(0.0));
+        put(
+            "learner_updates_per_busy_s",
+            learner.updates_per_busy_s().unwrap_or(0.0),
+        );
         let reports = summary["actors_reports"]
             .as_array()
             .map_or(&[][..], Vec::as_slice);
@@ -78,10 +88,9 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
             "actor_cpu_ms_per_action",
             1e3 * sum("cpu_s") / sum("actions").max(1.0),
         );
-        let learner_cpu_s = learner["cpu_s"].as_f64().unwrap_or(0.0);
         put(
             "learner_cpu_ms_per_update",
-            1e3 * learner_cpu_s / updates.max(1.0),
+            1e3 * learner.cpu_s.unwrap_or(0.0) / (learner.session_updates.max(1) as f64),
         );
         put(
             "actor_peak_rss_mb_per_env",

@@ -18,6 +18,7 @@ use crate::backend::{self, Backend};
 use crate::buffer::BufferReport;
 use crate::config::RunConfig;
 use crate::hosts::HostLink;
+use crate::learner::LearnerReport;
 use crate::machine::{Allowance, Demand};
 use crate::progress::{Display, Summary, Watch, percent};
 use crate::record::LAUNCHER_SUMMARY;
@@ -296,7 +297,7 @@ fn actor_reports(dir: &RunDir) -> Result<Vec<ActorReport>> {
 
 fn print_summary(summary: &Summary, dir: &RunDir) {
     println!(
-        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost{}), {} learner updates, {} restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
+        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost{}), {} learner updates{}, {} restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
         match (&summary.failure, summary.interrupted) {
             (Some(_), _) => "failed",
             (None, true) => "interrupted",
@@ -312,11 +313,29 @@ fn print_summary(summary: &Summary, dir: &RunDir) {
             n => format!(", {n} messages lost to restarts of the buffer"),
         },
         summary.learner.updates,
+        learner_pace(&summary.learner),
         summary.restarts,
         summary.wall_s,
         dir.path().display()
     );
     crate::hosts::print_hosts(&summary.hosts);
+}
+
+/// The learner's pace in a summary line: its updates a second, and how much of the time it
+/// was updating (near all of it, the learner paced the run; else the actors did) with its
+/// updates a second of that time.
+fn learner_pace(learner: &LearnerReport) -> String {
+    match (
+        learner.updates_per_s(),
+        learner.busy_share(),
+        learner.updates_per_busy_s(),
+    ) {
+        (Some(rate), Some(share), Some(own)) => format!(
+            " ({rate:.1}/s, busy {:.0}% of the time: {own:.1} a busy second)",
+            100.0 * share
+        ),
+        _ => String::new(),
+    }
 }
 
 /// Starts the roles, follows the run until its budget or an interrupt, then stops it in

@@ -43,6 +43,13 @@ pub struct LearnerReport {
     /// Updates this process took and the seconds from its first batch to the stop.
     pub session_updates: u64,
     pub training_s: f64,
+    /// Seconds of `training_s` spent on updates: the step, sending its priorities,
+    /// publishing and checkpointing. The rest the learner waited for batches, which the
+    /// buffer holds back while the actors have not caught up (the rate limiter). Near
+    /// `training_s`, the learner set the run's pace; `session_updates / busy_s` is its own,
+    /// whatever the actors do.
+    #[serde(default)]
+    pub busy_s: f64,
     /// CPU seconds the learner's process used over `training_s`, all its threads (none for a
     /// learner in a thread of the launcher, whose process the other roles share).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -66,6 +73,23 @@ pub struct LearnerReport {
     /// a GPU backend, none on the CPU's ([`Trainer::warm_up`]).
     #[serde(default)]
     pub warm_up_s: f64,
+}
+
+impl LearnerReport {
+    /// This process's updates per second from its first batch to the stop.
+    pub fn updates_per_s(&self) -> Option<f64> {
+        (self.training_s > 0.0).then(|| self.session_updates as f64 / self.training_s)
+    }
+
+    /// The share of that time it spent on updates rather than waiting for batches.
+    pub fn busy_share(&self) -> Option<f64> {
+        (self.training_s > 0.0).then(|| (self.busy_s / self.training_s).min(1.0))
+    }
+
+    /// Its updates per second of updating: its own pace, whether the actors kept up or not.
+    pub fn updates_per_busy_s(&self) -> Option<f64> {
+        (self.busy_s > 0.0).then(|| self.session_updates as f64 / self.busy_s)
+    }
 }
 
 /// The training sample of a stored transition: its label from reward and `next_value`, the
@@ -291,6 +315,7 @@ impl<'a> LearnerRole<'a> {
             return Ok(());
         }
         self.first_batch.get_or_insert_with(Stopwatch::start);
+        let busy = Stopwatch::start();
         let priorities = self.train(batch)?;
         ports.requests.send(&Message::PriorityUpdate(priorities))?;
         let updates = self.updates();
@@ -300,6 +325,7 @@ impl<'a> LearnerRole<'a> {
         if updates.is_multiple_of(self.config.learner.checkpoint_every) {
             self.save_checkpoint()?;
         }
+        self.report.busy_s += busy.wall_s();
         Ok(())
     }
 
