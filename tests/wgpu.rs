@@ -385,6 +385,50 @@ fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
     assert!(refused.contains("cpu or wgpu"), "{refused}");
 }
 
+/// `bench e2e --learners cpu,wgpu`: the same real run with each learner, their paces and
+/// the wgpu learner's against the CPU's. On lavapipe the wgpu learner is far the slower and
+/// sets its run's pace, the rate limiter holding the actor back.
+#[test]
+fn the_end_to_end_bench_runs_the_gpu_learner_beside_the_cpus() {
+    let _turn = device_turn();
+    let out = pushgrasp_ok(&[
+        "bench",
+        "e2e",
+        "--learners",
+        "cpu,wgpu",
+        "--environments",
+        "1",
+        "--episodes",
+        "40",
+        "--json",
+    ]);
+    let figures: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    println!("{figures}");
+    let figure = |name: &str| {
+        figures[name]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no {name} in {figures}"))
+    };
+    for learner in ["_1", "_1_wgpu"] {
+        assert!(figure(&format!("learner_updates_per_s{learner}")) > 0.0);
+        let busy = figure(&format!("learner_busy_share{learner}"));
+        assert!(busy > 0.0 && busy <= 1.0, "{figures}");
+        assert!(
+            figure(&format!("learner_updates_per_busy_s{learner}"))
+                >= figure(&format!("learner_updates_per_s{learner}")),
+            "{figures}"
+        );
+    }
+    assert!(figure("learner_busy_share_1_wgpu") > 0.9, "{figures}");
+    let speedup = figure("learner_speedup_1");
+    let own = figure("learner_updates_per_busy_s_1_wgpu") / figure("learner_updates_per_busy_s_1");
+    assert!((speedup - own).abs() <= 0.01 + 0.01 * own, "{figures}");
+    assert!(figure("learner_rate_ratio_1") > 0.0);
+
+    let refused = pushgrasp_fails(&["bench", "e2e", "--learners", "cuda"]);
+    assert!(refused.contains("cpu or wgpu"), "{refused}");
+}
+
 /// What `train` with its actors on wgpu says, under `env`, when it is refused before
 /// anything starts (no run directory made).
 fn refused_with(env: &[(&str, &str)]) -> String {

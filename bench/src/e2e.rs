@@ -1,13 +1,13 @@
 //! `pushgrasp bench e2e`: the whole system's throughput. Real `train` runs (processes over
 //! shared memory) with 1, 2 and 4 environments, each in an actor process of its own or K to
-//! a process (`--envs-per-actor`); actions per second summed over the environments (each
-//! one's actions over its own acting time, so process start-up is left out) and the
-//! learner's updates per second, the share of its time it spent updating (the rest it waited
-//! on the actors) and its updates per second of that time, read from the runs' reports;
-//! what an action and an update
-//! cost in CPU time (each role's process over the same time), which leaves out the time a
-//! role waits: on the rate limiter, or for a core the other roles hold; and the actors'
-//! peak resident memory per environment.
+//! a process (`--envs-per-actor`), and with each learner backend asked for (`--learners`);
+//! actions per second summed over the environments (each one's actions over its own acting
+//! time, so process start-up is left out) and the learner's updates per second, the share
+//! of its time it spent updating (the rest it waited on the actors) and its updates per
+//! second of that time, read from the runs' reports; what an action and an update cost in
+//! CPU time (each role's process over the same time), which leaves out the time a role
+//! waits: on the rate limiter, or for a core the other roles hold; and the actors' peak
+//! resident memory per environment.
 
 use std::path::Path;
 use std::process::Command;
@@ -17,6 +17,7 @@ use clap::Args;
 use serde_json::{Map, Value};
 
 use super::print_figures;
+use runtime::backend::Backend;
 use runtime::learner::LearnerReport;
 use runtime::{RunDir, read_json};
 
@@ -39,6 +40,12 @@ pub struct E2eBenchArgs {
     /// this count where it is above 1.
     #[arg(long, value_delimiter = ',', default_values_t = [1u32])]
     envs_per_actor: Vec<u32>,
+    /// The learner's backends (`--learners cpu,wgpu`, wgpu in a wgpu build): each run once
+    /// with each, the actors on the CPU. A wgpu learner's figures end in `_wgpu`; with both,
+    /// `learner_speedup_N` is the wgpu learner's updates per busy second over the CPU
+    /// learner's, and `learner_rate_ratio_N` the same of their updates a second.
+    #[arg(long, value_delimiter = ',', default_values_t = [Backend::Cpu])]
+    learners: Vec<Backend>,
 }
 
 pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
@@ -52,52 +59,86 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
             .map(move |&k| (environments, k))
     });
     for (environments, k) in runs {
-        let summary = train_run(
-            Path::new(&args.config),
-            environments / k,
-            &[format!("envs_per_actor={k}")],
-            args.episodes.max(2 * u64::from(environments)),
-            logs.path(),
-            &format!("bench-e2e-{environments}-{k}"),
-        )?;
-        let suffix = match k {
+        let shape = match k {
             1 => format!("_{environments}"),
             k => format!("_{environments}_k{k}"),
         };
-        let learner: LearnerReport = serde_json::from_value(summary["learner"].clone())
-            .context("the learner's report in the run's summary")?;
-        let mut put = |name: &str, value: f64| {
-            figures.insert(format!("{name}{suffix}"), round(value));
-        };
-        put("actions_per_s", actions_per_s(&summary));
-        put(
-            "learner_updates_per_s",
-            learner.updates_per_s().unwrap_or(0.0),
-        );
-        put("learner_busy_share", learner.busy_share().unwrap_or(0.0));
-        put(
-            "learner_updates_per_busy_s",
-            learner.updates_per_busy_s().unwrap_or(0.0),
-        );
-        let reports = summary["actors_reports"]
-            .as_array()
-            .map_or(&[][..], Vec::as_slice);
-        let sum =
-            |key: &str| -> f64 { reports.iter().map(|r| r[key].as_f64().unwrap_or(0.0)).sum() };
-        put(
-            "actor_cpu_ms_per_action",
-            1e3 * sum("cpu_s") / sum("actions").max(1.0),
-        );
-        put(
-            "learner_cpu_ms_per_update",
-            1e3 * learner.cpu_s.unwrap_or(0.0) / (learner.session_updates.max(1) as f64),
-        );
-        put(
-            "actor_peak_rss_mb_per_env",
-            sum("peak_rss_mb") / (reports.len().max(1) as f64),
-        );
+        let mut learners: Vec<(Backend, LearnerReport)> = Vec::new();
+        for &backend in &args.learners {
+            let summary = train_run(
+                Path::new(&args.config),
+                environments / k,
+                &[
+                    format!("envs_per_actor={k}"),
+                    format!("backend.learner=\"{backend}\""),
+                ],
+                args.episodes.max(2 * u64::from(environments)),
+                logs.path(),
+                &format!("bench-e2e-{environments}-{k}-{backend}"),
+            )?;
+            let suffix = match backend {
+                Backend::Cpu => shape.clone(),
+                other => format!("{shape}_{other}"),
+            };
+            learners.push((backend, put_run(&mut figures, &summary, &suffix)?));
+        }
+        let report = |backend| learners.iter().find(|(b, _)| *b == backend).map(|(_, r)| r);
+        if let (Some(cpu), Some(gpu)) = (report(Backend::Cpu), report(Backend::Wgpu)) {
+            let ratio = |pace: fn(&LearnerReport) -> Option<f64>| match (pace(gpu), pace(cpu)) {
+                (Some(gpu), Some(cpu)) if cpu > 0.0 => round(gpu / cpu),
+                _ => Value::Null,
+            };
+            figures.insert(
+                format!("learner_speedup{shape}"),
+                ratio(LearnerReport::updates_per_busy_s),
+            );
+            figures.insert(
+                format!("learner_rate_ratio{shape}"),
+                ratio(LearnerReport::updates_per_s),
+            );
+        }
     }
     print_figures(&Value::Object(figures), args.json)
+}
+
+/// One run's figures, their names ending in `suffix`; returns its learner's report.
+fn put_run(
+    figures: &mut Map<String, Value>,
+    summary: &Value,
+    suffix: &str,
+) -> Result<LearnerReport> {
+    let learner: LearnerReport = serde_json::from_value(summary["learner"].clone())
+        .context("the learner's report in the run's summary")?;
+    let mut put = |name: &str, value: f64| {
+        figures.insert(format!("{name}{suffix}"), round(value));
+    };
+    put("actions_per_s", actions_per_s(summary));
+    put(
+        "learner_updates_per_s",
+        learner.updates_per_s().unwrap_or(0.0),
+    );
+    put("learner_busy_share", learner.busy_share().unwrap_or(0.0));
+    put(
+        "learner_updates_per_busy_s",
+        learner.updates_per_busy_s().unwrap_or(0.0),
+    );
+    let reports = summary["actors_reports"]
+        .as_array()
+        .map_or(&[][..], Vec::as_slice);
+    let sum = |key: &str| -> f64 { reports.iter().map(|r| r[key].as_f64().unwrap_or(0.0)).sum() };
+    put(
+        "actor_cpu_ms_per_action",
+        1e3 * sum("cpu_s") / sum("actions").max(1.0),
+    );
+    put(
+        "learner_cpu_ms_per_update",
+        1e3 * learner.cpu_s.unwrap_or(0.0) / (learner.session_updates.max(1) as f64),
+    );
+    put(
+        "actor_peak_rss_mb_per_env",
+        sum("peak_rss_mb") / (reports.len().max(1) as f64),
+    );
+    Ok(learner)
 }
 
 /// Runs `pushgrasp train` (processes over shared memory) into `logs/<name>-<pid>` and returns
