@@ -315,7 +315,7 @@ impl<'a> LearnerRole<'a> {
             return Ok(());
         }
         self.first_batch.get_or_insert_with(Stopwatch::start);
-        let busy = Stopwatch::start();
+        let started = Instant::now();
         let priorities = self.train(batch)?;
         ports.requests.send(&Message::PriorityUpdate(priorities))?;
         let updates = self.updates();
@@ -325,7 +325,7 @@ impl<'a> LearnerRole<'a> {
         if updates.is_multiple_of(self.config.learner.checkpoint_every) {
             self.save_checkpoint()?;
         }
-        self.report.busy_s += busy.wall_s();
+        self.report.busy_s += started.elapsed().as_secs_f64();
         Ok(())
     }
 
