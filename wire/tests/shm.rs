@@ -680,6 +680,45 @@ fn a_service_left_unsized_by_a_killed_process_is_removed() {
 }
 
 #[test]
+fn a_node_killed_while_it_tagged_a_service_is_removed() {
+    const TEST: &str = "a_node_killed_while_it_tagged_a_service_is_removed";
+    if let Some((role, run, _)) = helper_role() {
+        let transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
+        let _steps = transport.publisher(Topic::Steps).unwrap();
+        say_ready();
+        wait_for_stdin_to_close();
+        return;
+    }
+    let run = unique_run("tagging");
+    let mut killed = helper(TEST, "killed", &run, "");
+    killed.wait_ready();
+    let node = iceoryx2_names_of(&run)[0].clone();
+    let node_dir = std::path::Path::new(Config::default().global.node_dir().as_str()).join(&node);
+    let tag = std::fs::read_dir(&node_dir)
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .find(|path| path.to_string_lossy().ends_with(".service_tag"))
+        .expect("the node's tag of the service it publishes to");
+    // What a process killed while it wrote the tag leaves: iceoryx2 makes a tag read-only
+    // once written, and lists only those, so this one is never removed by its cleanup.
+    std::fs::set_permissions(&tag, std::os::unix::fs::PermissionsExt::from_mode(0o600)).unwrap();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&tag)
+        .unwrap()
+        .set_len(0)
+        .unwrap();
+    killed.kill();
+    // Another test's new process may be cleaning the dead node up meanwhile (and, unpatched,
+    // stop at the tag after removing the node's details, so that no run can tell it is its).
+    poll("the dead node's removal", || {
+        ShmTransport::remove_stale(&run).unwrap();
+        (!node_dir.exists()).then_some(())
+    });
+    assert_run_left_nothing(&run);
+}
+
+#[test]
 fn a_topic_admits_the_processes_of_its_run_and_names_the_limit_past_them() {
     let run = unique_run("limits");
     let limits = ShmLimits::for_processes(40);

@@ -70,7 +70,8 @@ pub struct ShmTransport {
 /// What [`ShmTransport::remove_stale`] found of a run.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct StaleCleanup {
-    /// Dead processes of the run whose shared memory was removed.
+    /// Dead processes of the run whose shared memory was removed (with any dead process
+    /// whose run is no longer known: see [`ShmTransport::remove_stale`]).
     pub removed: usize,
     /// Dead processes whose resources could not be removed (another process is removing
     /// them, or permissions).
@@ -115,22 +116,31 @@ impl ShmTransport {
     /// The run's processes are those under `run_id` and under any id that extends it with
     /// `-<suffix>` (a launcher gives each launch of a run its own). A launcher calls it
     /// before it starts or resumes a run.
+    ///
+    /// A process killed while it wrote one of its node's files leaves it half-made, and
+    /// iceoryx2 0.10's cleanup never removes such a file ([`finish_half_made`]): it removes
+    /// the node's details, then fails on the directory the file keeps, every time (and,
+    /// without the details, warns that it takes its default config). A dead node's
+    /// half-made files are marked finished first. A node already stuck that way, its
+    /// details gone, is of no run anyone can name, so it is cleaned up whatever run asks, as
+    /// iceoryx2 itself cleans up every dead node of any run when a node is created.
     pub fn remove_stale(run_id: &str) -> Result<StaleCleanup, TransportError> {
         check_run_id(run_id)?;
-        let of_run = |name: Option<&str>| name.is_some_and(|name| is_of_run(name, run_id));
+        let config = config()?;
         let mut dead = Vec::new();
         let mut report = StaleCleanup::default();
-        Node::<ipc::Service>::list(&config()?, |state| {
+        Node::<ipc::Service>::list(&config, |state| {
             match state {
                 NodeState::Alive(view) => {
                     if let Some(details) = view.details()
-                        && of_run(Some(details.name().as_str()))
+                        && is_of_run(details.name().as_str(), run_id)
                     {
                         report.alive.push(details.process_id().value());
                     }
                 }
                 NodeState::Dead(view) => {
-                    if of_run(view.details().as_ref().map(|d| d.name().as_str())) {
+                    let run = view.details().as_ref().map(|d| d.name().to_string());
+                    if run.is_none_or(|name| is_of_run(&name, run_id)) {
                         dead.push(view);
                     }
                 }
@@ -142,6 +152,7 @@ impl ShmTransport {
             why: format!("cannot list the iceoryx2 nodes: {e}"),
         })?;
         for view in dead {
+            finish_half_made(&config, &view.id().value().to_string());
             match view.blocking_remove_stale_resources(CLEANUP_WAIT) {
                 Ok(()) => report.removed += 1,
                 Err(_) => report.failed += 1,
@@ -188,6 +199,30 @@ impl ShmTransport {
                     self.limits.processes()
                 ),
             })
+    }
+}
+
+/// Marks the files a dead node's process left half-made in its node directory (`node`,
+/// the node id) as finished, so iceoryx2's cleanup handles them. iceoryx2 writes a node's
+/// details and its service and port tags read-write and makes each read-only once written;
+/// its listing, and so its cleanup, passes over the read-write ones as being made, and the
+/// directory they keep is never removed. The node's process is dead, so none will be
+/// finished otherwise. A tag says by its name alone which service or port the node joined:
+/// finished, the cleanup takes the node out of that service if it got in, else removes the
+/// tag. Best effort: what this cannot change, the cleanup after reports.
+fn finish_half_made(config: &Config, node: &str) {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = std::path::Path::new(config.global.node_dir().as_str()).join(node);
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let half_made = entry
+            .metadata()
+            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o777 == 0o600);
+        if half_made {
+            let _ = std::fs::set_permissions(entry.path(), PermissionsExt::from_mode(0o400));
+        }
     }
 }
 
