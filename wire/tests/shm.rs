@@ -624,14 +624,23 @@ fn a_run_leaves_no_files_behind_even_after_a_kill() {
     assert_run_left_nothing(&run);
 }
 
+/// In a helper process: joins its run as its role with a publisher of steps, says it is
+/// ready and waits to be killed. Returns whether this process is such a helper.
+fn publish_steps_until_killed() -> bool {
+    let Some((role, run, _)) = helper_role() else {
+        return false;
+    };
+    let transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
+    let _steps = transport.publisher(Topic::Steps).unwrap();
+    say_ready();
+    wait_for_stdin_to_close();
+    true
+}
+
 #[test]
 fn a_service_left_unsized_by_a_killed_process_is_removed() {
     const TEST: &str = "a_service_left_unsized_by_a_killed_process_is_removed";
-    if let Some((role, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
-        let _steps = transport.publisher(Topic::Steps).unwrap();
-        say_ready();
-        wait_for_stdin_to_close();
+    if publish_steps_until_killed() {
         return;
     }
     // A new process of another test may clean up after the killed one before this test
@@ -682,11 +691,7 @@ fn a_service_left_unsized_by_a_killed_process_is_removed() {
 #[test]
 fn a_node_killed_while_it_tagged_a_service_is_removed() {
     const TEST: &str = "a_node_killed_while_it_tagged_a_service_is_removed";
-    if let Some((role, run, _)) = helper_role() {
-        let transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
-        let _steps = transport.publisher(Topic::Steps).unwrap();
-        say_ready();
-        wait_for_stdin_to_close();
+    if publish_steps_until_killed() {
         return;
     }
     let run = unique_run("tagging");
