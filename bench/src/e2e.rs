@@ -41,10 +41,11 @@ pub struct E2eBenchArgs {
     #[arg(long, value_delimiter = ',', default_values_t = [1u32])]
     envs_per_actor: Vec<u32>,
     /// The learner's backends (`--learners cpu,wgpu`, wgpu in a wgpu build): each run once
-    /// with each, the actors on the CPU. A wgpu learner's figures end in `_wgpu`; with both,
-    /// `learner_speedup_N` is the wgpu learner's updates per busy second over the CPU
-    /// learner's, and `learner_rate_ratio_N` the same of their updates a second.
-    #[arg(long, value_delimiter = ',', default_values_t = [Backend::Cpu])]
+    /// with each, the actors on the CPU; without, the config's learner. A wgpu learner's
+    /// figures end in `_wgpu`; with both, `learner_speedup_N` is the wgpu learner's updates
+    /// per busy second over the CPU learner's, and `learner_rate_ratio_N` the same of their
+    /// updates a second.
+    #[arg(long, value_delimiter = ',')]
     learners: Vec<Backend>,
 }
 
@@ -63,24 +64,29 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
             1 => format!("_{environments}"),
             k => format!("_{environments}_k{k}"),
         };
+        // None: the config's own learner.
+        let asked: Vec<Option<Backend>> = match args.learners.as_slice() {
+            [] => vec![None],
+            backends => backends.iter().copied().map(Some).collect(),
+        };
         let mut learners: Vec<(Backend, LearnerReport)> = Vec::new();
-        for &backend in &args.learners {
+        for backend in asked {
+            let mut settings = vec![format!("envs_per_actor={k}")];
+            settings.extend(backend.map(|b| format!("backend.learner=\"{b}\"")));
+            let (suffix, name) = match backend {
+                Some(Backend::Wgpu) => (format!("{shape}_wgpu"), "-wgpu"),
+                _ => (shape.clone(), ""),
+            };
             let summary = train_run(
                 Path::new(&args.config),
                 environments / k,
-                &[
-                    format!("envs_per_actor={k}"),
-                    format!("backend.learner=\"{backend}\""),
-                ],
+                &settings,
                 args.episodes.max(2 * u64::from(environments)),
                 logs.path(),
-                &format!("bench-e2e-{environments}-{k}-{backend}"),
+                &format!("bench-e2e-{environments}-{k}{name}"),
             )?;
-            let suffix = match backend {
-                Backend::Cpu => shape.clone(),
-                other => format!("{shape}_{other}"),
-            };
-            learners.push((backend, put_run(&mut figures, &summary, &suffix)?));
+            let report = put_run(&mut figures, &summary, &suffix)?;
+            learners.extend(backend.map(|b| (b, report)));
         }
         let report = |backend| learners.iter().find(|(b, _)| *b == backend).map(|(_, r)| r);
         if let (Some(cpu), Some(gpu)) = (report(Backend::Cpu), report(Backend::Wgpu)) {
