@@ -59,18 +59,18 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
             .filter(move |&&k| k > 0 && environments % k == 0)
             .map(move |&k| (environments, k))
     });
+    // None: the config's own learner.
+    let learners: Vec<Option<Backend>> = match args.learners.as_slice() {
+        [] => vec![None],
+        backends => backends.iter().copied().map(Some).collect(),
+    };
     for (environments, k) in runs {
         let shape = match k {
             1 => format!("_{environments}"),
             k => format!("_{environments}_k{k}"),
         };
-        // None: the config's own learner.
-        let asked: Vec<Option<Backend>> = match args.learners.as_slice() {
-            [] => vec![None],
-            backends => backends.iter().copied().map(Some).collect(),
-        };
-        let mut learners: Vec<(Backend, LearnerReport)> = Vec::new();
-        for backend in asked {
+        let (mut cpu, mut gpu) = (None, None);
+        for &backend in &learners {
             let mut settings = vec![format!("envs_per_actor={k}")];
             settings.extend(backend.map(|b| format!("backend.learner=\"{b}\"")));
             let (suffix, name) = match backend {
@@ -86,10 +86,13 @@ pub fn bench_e2e(args: &E2eBenchArgs) -> Result<()> {
                 &format!("bench-e2e-{environments}-{k}{name}"),
             )?;
             let report = put_run(&mut figures, &summary, &suffix)?;
-            learners.extend(backend.map(|b| (b, report)));
+            match backend {
+                Some(Backend::Cpu) => cpu = Some(report),
+                Some(Backend::Wgpu) => gpu = Some(report),
+                None => {}
+            }
         }
-        let report = |backend| learners.iter().find(|(b, _)| *b == backend).map(|(_, r)| r);
-        if let (Some(cpu), Some(gpu)) = (report(Backend::Cpu), report(Backend::Wgpu)) {
+        if let (Some(cpu), Some(gpu)) = (&cpu, &gpu) {
             let ratio = |pace: fn(&LearnerReport) -> Option<f64>| match (pace(gpu), pace(cpu)) {
                 (Some(gpu), Some(cpu)) if cpu > 0.0 => round(gpu / cpu),
                 _ => Value::Null,

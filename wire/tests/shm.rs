@@ -697,6 +697,7 @@ fn a_node_killed_while_it_tagged_a_service_is_removed() {
     let run = unique_run("tagging");
     let mut killed = helper(TEST, "killed", &run, "");
     killed.wait_ready();
+    // The helper's node id, which its names list first.
     let node = iceoryx2_names_of(&run)[0].clone();
     let node_dir = std::path::Path::new(Config::default().global.node_dir().as_str()).join(&node);
     let tag = std::fs::read_dir(&node_dir)
@@ -715,7 +716,7 @@ fn a_node_killed_while_it_tagged_a_service_is_removed() {
         .unwrap();
     killed.kill();
     // Another test's new process may be cleaning the dead node up meanwhile (and, unpatched,
-    // stop at the tag after removing the node's details, so that no run can tell it is its).
+    // stop at the tag after removing the node's details, so that no run can claim it).
     poll("the dead node's removal", || {
         ShmTransport::remove_stale(&run).unwrap();
         (!node_dir.exists()).then_some(())
