@@ -725,6 +725,48 @@ fn a_node_killed_while_it_tagged_a_service_is_removed() {
 }
 
 #[test]
+fn a_node_killed_before_its_monitor_token_is_removed() {
+    const TEST: &str = "a_node_killed_before_its_monitor_token_is_removed";
+    if let Some((role, run, _)) = helper_role() {
+        let _transport = ShmTransport::new(&run, &role, LIMITS).unwrap();
+        say_ready();
+        wait_for_stdin_to_close();
+        return;
+    }
+    let run = unique_run("untokened");
+    let mut killed = helper(TEST, "killed", &run, "");
+    killed.wait_ready();
+    let node = iceoryx2_names_of(&run)[0].clone();
+    let config = Config::default();
+    let nodes = std::path::PathBuf::from(config.global.node_dir().as_str());
+    let node_dir = nodes.join(&node);
+    // What a process killed after writing its node's details, before its monitor token was
+    // made, leaves: the node's directory alone, which `Node::list` cannot find.
+    let token = format!("iox2_{node}.");
+    for file in std::fs::read_dir(&nodes)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+    {
+        if file
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .starts_with(&token)
+        {
+            std::fs::remove_file(file).unwrap();
+        }
+    }
+    // Alive, it may be making its token: left alone.
+    ShmTransport::remove_stale(&run).unwrap();
+    assert!(node_dir.exists(), "a live process's node was removed");
+    killed.kill();
+    let report = ShmTransport::remove_stale(&run).unwrap();
+    assert!(!node_dir.exists(), "the dead node is left: {report:?}");
+    assert_run_left_nothing(&run);
+    assert_eq!(files_named(&[node]), Vec::<String>::new());
+}
+
+#[test]
 fn a_topic_admits_the_processes_of_its_run_and_names_the_limit_past_them() {
     let run = unique_run("limits");
     let limits = ShmLimits::for_processes(40);

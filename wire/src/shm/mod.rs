@@ -23,7 +23,7 @@
 //! - History (the newest weights, the newest order) reaches a subscriber that joins later
 //!   only when the publisher next sends or calls [`Publisher::refresh`].
 
-use std::collections::VecDeque;
+use std::collections::{HashSet, VecDeque};
 use std::time::{Duration, Instant};
 
 use iceoryx2::node::NodeView;
@@ -44,6 +44,7 @@ use crate::topic::{Delivery, Topic};
 use crate::transport::{Publisher, Subscriber, Transport};
 
 mod limits;
+mod stale;
 pub use limits::{LargestMessages, ShmFootprint, ShmLimits};
 
 /// Every name this transport gives starts with this.
@@ -118,18 +119,22 @@ impl ShmTransport {
     /// before it starts or resumes a run.
     ///
     /// A process killed while it wrote one of its node's files leaves it half-made, and
-    /// iceoryx2 0.10's cleanup never removes such a file ([`finish_half_made`]): it removes
-    /// the node's details, then fails on the directory the file keeps, every time (and,
-    /// without the details, warns that it takes its default config). A dead node's
+    /// iceoryx2 0.10's cleanup never removes such a file ([`stale::finish_half_made`]): it
+    /// removes the node's details, then fails on the directory the file keeps, every time
+    /// (and, without the details, warns that it takes its default config). A dead node's
     /// half-made files are marked finished first. A node already stuck that way, its
     /// details gone, is of no run anyone can name, so it is cleaned up whatever run asks, as
-    /// iceoryx2 itself cleans up every dead node of any run when a node is created.
+    /// iceoryx2 itself cleans up every dead node of any run when a node is created. So is
+    /// a node killed before it had a monitor token, which iceoryx2 cannot find at all
+    /// ([`stale::remove_unmonitored`]).
     pub fn remove_stale(run_id: &str) -> Result<StaleCleanup, TransportError> {
         check_run_id(run_id)?;
         let config = config()?;
         let mut dead = Vec::new();
+        let mut listed = HashSet::new();
         let mut report = StaleCleanup::default();
         Node::<ipc::Service>::list(&config, |state| {
+            listed.insert(state.node_id().value().to_string());
             match state {
                 NodeState::Alive(view) => {
                     if let Some(details) = view.details()
@@ -152,12 +157,13 @@ impl ShmTransport {
             why: format!("cannot list the iceoryx2 nodes: {e}"),
         })?;
         for view in dead {
-            finish_half_made(&config, &view.id().value().to_string());
+            stale::finish_half_made(&config, &view.id().value().to_string());
             match view.blocking_remove_stale_resources(CLEANUP_WAIT) {
                 Ok(()) => report.removed += 1,
                 Err(_) => report.failed += 1,
             }
         }
+        report.removed += stale::remove_unmonitored(&config, &listed);
         Ok(report)
     }
 
@@ -199,30 +205,6 @@ impl ShmTransport {
                     self.limits.processes()
                 ),
             })
-    }
-}
-
-/// Marks the files a dead node's process left half-made in its node directory (`node`,
-/// the node id) as finished, so iceoryx2's cleanup handles them. iceoryx2 writes a node's
-/// details and its service and port tags read-write and makes each read-only once written;
-/// its listing, and so its cleanup, passes over the read-write ones as being made, and the
-/// directory they keep is never removed. The node's process is dead, so none will be
-/// finished otherwise. A tag says by its name alone which service or port the node joined:
-/// finished, the cleanup takes the node out of that service if it got in, else removes the
-/// tag. Best effort: what this cannot change, the cleanup after reports.
-fn finish_half_made(config: &Config, node: &str) {
-    use std::os::unix::fs::PermissionsExt;
-    let dir = std::path::Path::new(config.global.node_dir().as_str()).join(node);
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let half_made = entry
-            .metadata()
-            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o777 == 0o600);
-        if half_made {
-            let _ = std::fs::set_permissions(entry.path(), PermissionsExt::from_mode(0o400));
-        }
     }
 }
 

@@ -1,0 +1,87 @@
+//! What killed processes leave of their iceoryx2 nodes that iceoryx2 0.10's own cleanup
+//! never removes. A node is made in three steps: its directory with its details, then its
+//! monitor token (by which `Node::list`, and so every cleanup, finds it), then its service
+//! and port tags. A process killed inside a step leaves what the cleanup cannot see.
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use iceoryx2::prelude::Config;
+use serde::Deserialize;
+
+use super::PREFIX;
+
+/// Marks the files a dead node's process left half-made in its node directory (`node`,
+/// the node id) as finished, so iceoryx2's cleanup handles them. iceoryx2 writes a node's
+/// details and its service and port tags read-write and makes each read-only once written;
+/// its listing, and so its cleanup, passes over the read-write ones as being made, and the
+/// directory they keep is never removed. The node's process is dead, so none will be
+/// finished otherwise. A tag says by its name alone which service or port the node joined:
+/// finished, the cleanup takes the node out of that service if it got in, else removes the
+/// tag. Best effort: what this cannot change, the cleanup after reports.
+pub(super) fn finish_half_made(config: &Config, node: &str) {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = Path::new(config.global.node_dir().as_str()).join(node);
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let half_made = entry
+            .metadata()
+            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o777 == 0o600);
+        if half_made {
+            let _ = std::fs::set_permissions(entry.path(), PermissionsExt::from_mode(0o400));
+        }
+    }
+}
+
+/// What a node's details file says that this cleanup needs (it holds the node's config too).
+#[derive(Deserialize)]
+struct NodeDetails {
+    process: u32,
+    name: String,
+}
+
+/// Removes the node directories of pushgrasp processes killed before their node had a
+/// monitor token (`listed`: the ids of the nodes `Node::list` found), with the token's
+/// half-made files. Such a node joined no service, so its directory and token are all it
+/// left; but unlisted, no cleanup ever removes them. A node is taken only when its details
+/// name a pushgrasp process that is gone: a live one may be making its token now, and a
+/// node without readable details may be anyone's. Returns how many were removed.
+pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> usize {
+    let node_dir = config.global.node_dir();
+    let node_dir = Path::new(node_dir.as_str());
+    let Ok(entries) = std::fs::read_dir(node_dir) else {
+        return 0;
+    };
+    let prefix = config.global.prefix.to_string();
+    let details_file = format!("{prefix}node{}", config.global.node.static_config_suffix);
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let id = entry.file_name().to_string_lossy().into_owned();
+        let is_node = id.parse::<u128>().is_ok() && entry.path().is_dir();
+        if !is_node || listed.contains(&id) {
+            continue;
+        }
+        let details = std::fs::read_to_string(entry.path().join(&details_file))
+            .ok()
+            .and_then(|text| toml::from_str::<NodeDetails>(&text).ok());
+        let Some(details) = details else {
+            continue;
+        };
+        let ours = details.name.starts_with(&format!("{PREFIX}/"));
+        let gone = !Path::new(&format!("/proc/{}", details.process)).exists();
+        if !(ours && gone) || std::fs::remove_dir_all(entry.path()).is_err() {
+            continue;
+        }
+        removed += 1;
+        // The token's files, made or half-made: `<prefix><id><monitor suffix>[_context]`.
+        let token = format!("{prefix}{id}.");
+        for file in std::fs::read_dir(node_dir).into_iter().flatten().flatten() {
+            if file.file_name().to_string_lossy().starts_with(&token) {
+                let _ = std::fs::remove_file(file.path());
+            }
+        }
+    }
+    removed
+}
