@@ -380,6 +380,11 @@ fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
     let diff = figures["max_rel_diff_vs_cpu_112"].as_f64().unwrap();
     assert!(diff <= f64::from(AGREEMENT), "{diff}");
     assert!(figures["batch_train_speedup_vs_cpu_112"].as_f64().unwrap() > 0.0);
+    // The host's CPU a step, by part: each part's threads found by their names.
+    for part in ["fusion", "server", "other"] {
+        let ms = figures[format!("batch_train_{part}_cpu_ms_112")].as_f64();
+        assert!(ms.is_some_and(|ms| ms > 0.0), "{part}: {ms:?}");
+    }
 
     let refused = pushgrasp_fails(&["bench", "learner", "--backend", "vulkan"]);
     assert!(refused.contains("cpu or wgpu"), "{refused}");

@@ -23,6 +23,7 @@ mod peer;
 mod python;
 mod replay;
 mod soak;
+mod thread_cpu;
 mod transport;
 
 #[derive(Subcommand)]
@@ -410,7 +411,9 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
         let (train, _) = train_step_ms(&mut trainer, &samples(1), reps)?;
         // The default learning config keeps no average: the published nets are the trained.
         let before_batch = trainer.published_nets();
+        let threads_before = thread_cpu::ThreadCpu::now();
         let (batch_train, first_batch) = train_step_ms(&mut trainer, &samples(8), reps)?;
+        let threads = thread_cpu::ThreadCpu::now().zip(threads_before);
         let publish = publish_ms(&trainer, reps)?;
         if backend != Backend::Cpu {
             // The same weights on the CPU: how far this device's Q maps are from the CPU's,
@@ -433,6 +436,14 @@ fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
             put("cpu_batch_train_step_ms", cpu_batch_train);
             put("cpu_publish_ms", publish_ms(&cpu_trainer, reps)?);
             put("batch_train_speedup_vs_cpu", cpu_batch_train / batch_train);
+            // Where the host's time went in those steps (the untimed one before them too).
+            if let Some((after, before)) = threads {
+                let used = after.since(before);
+                let per_step_ms = |s: f64| s * 1e3 / (reps + 1) as f64;
+                put("batch_train_fusion_cpu_ms", per_step_ms(used.fusion_s));
+                put("batch_train_server_cpu_ms", per_step_ms(used.server_s));
+                put("batch_train_other_cpu_ms", per_step_ms(used.other_s));
+            }
         }
         let per_pass = net.flops_per_pass(geometry.padded());
         let gflop_inference = 2.0 * passes as f64 * per_pass / 1e9;
