@@ -10,6 +10,7 @@ use std::sync::{Mutex, MutexGuard};
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
+use learner::adam::Adam;
 use learner::{Checkpoint, LearningConfig, Manifest, Sample, SavedNets, TrainedNet, Trainer};
 use qnet::{ActingNets, Backend, Difference, NetInput, QNetConfig, QNets};
 use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
@@ -234,6 +235,60 @@ fn one_training_step_gives_the_cpus_loss_and_weights() {
             "after one step, wgpu vs cpu",
         );
     }
+}
+
+/// Values between -1 and 1 that differ from one to the next, the same on every device.
+fn wavy<const D: usize>(shape: [usize; D], phase: f32, device: &Device) -> Tensor<D> {
+    let n = shape.iter().product();
+    let values: Vec<f32> = (0..n).map(|k| (k as f32 * 0.7 + phase).sin()).collect();
+    Tensor::from_data(burn::tensor::TensorData::new(values, shape), device)
+}
+
+/// A linear layer trained four steps on `device` by `optimiser`; its weights after.
+fn adam_trained(device: &Device, mut optimiser: burn::optim::ModuleOptimizer) -> Vec<f32> {
+    use burn::nn::{Linear, LinearConfig};
+    use burn::optim::GradientsParams;
+    let device = device.clone().autodiff();
+    let mut layer: Linear = LinearConfig::new(37, 19).init(&device);
+    layer.weight = Param::from_tensor(wavy([37, 19], 0.0, &device));
+    layer.bias = Some(Param::from_tensor(wavy([19], 1.0, &device)));
+    for step in 0..4 {
+        let x = wavy([8, 37], step as f32, &device).mul_scalar(step as f32 + 1.0);
+        let loss = layer.forward(x).powf_scalar(2.0).sum();
+        let grads = GradientsParams::from_grads(loss.backward(), &layer);
+        layer = optimiser.step(1e-2, layer, grads);
+    }
+    let mut floats = Floats::default();
+    layer.visit(&mut floats);
+    floats.0.concat()
+}
+
+#[test]
+fn adams_kernel_steps_as_burns_adam_on_the_cpu() {
+    use burn::optim::decay::WeightDecayConfig;
+    use burn::optim::{AdamConfig, ModuleOptimizer, Optimizer};
+    let _turn = device_turn();
+    let gpu = gpu();
+    // Each tensor's step one kernel (learner::adam) on the GPU, burn's own Adam on the CPU.
+    let ours = adam_trained(&gpu, ModuleOptimizer::from(Adam::new(0.9, 0.99, 0.05)));
+    let burns = AdamConfig::new()
+        .with_beta_1(0.9)
+        .with_beta_2(0.99)
+        .with_weight_decay(Some(WeightDecayConfig::new(0.05)));
+    let want = adam_trained(&Device::flex(), burns.init());
+    let d = Difference::between(&ours, &want);
+    println!("Adam, four steps, the wgpu kernel vs burn's on the cpu: {d:?}");
+    assert!(d.max_rel <= 1e-5, "{d:?}");
+    // A gradient laid out transposed in memory, as the kernel reads it.
+    let step = |device: &Device| {
+        let param = wavy([19, 37], 0.0, device);
+        let grad = wavy([37, 19], 2.0, device).transpose();
+        let (param, _) = Adam::new(0.9, 0.99, 0.05).step(1e-2, param, grad, None);
+        param.into_data().try_to_vec::<f32>().unwrap()
+    };
+    let d = Difference::between(&step(&gpu), &step(&Device::flex()));
+    println!("Adam, a transposed gradient, wgpu vs cpu: {d:?}");
+    assert!(d.max_rel <= 1e-5, "{d:?}");
 }
 
 #[test]

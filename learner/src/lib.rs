@@ -4,6 +4,7 @@
 //! Polyak average), optionally the learner's own bootstrap values from target nets (Double
 //! DQN), checkpoints, and the trunks' generic visual pretraining.
 
+pub mod adam;
 pub mod averaging;
 pub mod checkpoint;
 pub mod config;

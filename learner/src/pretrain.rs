@@ -6,7 +6,7 @@
 
 use burn::module::Module;
 use burn::nn::loss::BinaryCrossEntropyLossConfig;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use rand::{RngExt, SeedableRng};
@@ -14,6 +14,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use sim::{Camera, Heightmaps, Primitive, ROTATIONS, Rows, SimConfig, SimError, Tabletop};
 
+use crate::adam::Adam;
 use crate::error::LearnerError;
 
 /// Every setting of a pretraining, visible.
@@ -121,7 +122,8 @@ pub fn pretrain(
     let device = nets.device().autodiff();
     let mut nets = nets.to_device(&device).train();
     let geometry = Geometry::new(camera.grid().side(), net_config);
-    let mut optimiser = AdamConfig::new().init();
+    // Adam with burn's default factors, no weight decay.
+    let mut optimiser = ModuleOptimizer::from(Adam::new(0.9, 0.999, 0.0));
     let loss_of = BinaryCrossEntropyLossConfig::new()
         .with_logits(true)
         .init(&device);

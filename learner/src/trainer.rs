@@ -7,8 +7,7 @@
 //! added. Every other pixel contributes nothing.
 
 use burn::module::Module;
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::Transaction;
 use burn::tensor::activation::log_sigmoid;
@@ -17,6 +16,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sim::{Action, Primitive, ROTATIONS};
 
+use crate::adam::Adam;
 use crate::averaging::polyak_step;
 use crate::checkpoint::SavedNets;
 use crate::config::LearningConfig;
@@ -94,11 +94,7 @@ impl Trainer {
         trained: TrainedNet,
         device: &Device,
     ) -> Self {
-        let optimiser = AdamConfig::new()
-            .with_beta_1(config.beta_1)
-            .with_beta_2(config.beta_2)
-            .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
-            .init();
+        let optimiser = ModuleOptimizer::from(Adam::of(config));
         let nets = nets.to_device(&device.clone().autodiff()).train();
         let average = (config.polyak_rate < 1.0).then(|| nets.valid());
         let target = (config.target_update_every > 0).then(|| nets.valid());
