@@ -767,6 +767,35 @@ fn a_node_killed_before_its_monitor_token_is_removed() {
 }
 
 #[test]
+fn an_empty_node_directory_left_for_minutes_is_removed() {
+    // What a process killed between making its node's directory and writing the node's
+    // details into it leaves: an empty directory, which no listing finds.
+    let nodes = std::path::PathBuf::from(Config::default().global.node_dir().as_str());
+    std::fs::create_dir_all(&nodes).unwrap();
+    let nanos = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_nanos();
+    let [old, fresh] = [1, 2].map(|k| nodes.join(format!("{k}{nanos}")));
+    for dir in [&old, &fresh] {
+        std::fs::create_dir(dir).unwrap();
+    }
+    let minutes_ago = SystemTime::now() - Duration::from_secs(180);
+    std::fs::File::open(&old)
+        .unwrap()
+        .set_modified(minutes_ago)
+        .unwrap();
+    ShmTransport::remove_stale(&unique_run("empty")).unwrap();
+    assert!(
+        !old.exists(),
+        "an empty node directory of 3 minutes ago is left"
+    );
+    // One made just now may be getting its details.
+    assert!(fresh.exists(), "a node directory made just now was removed");
+    std::fs::remove_dir(fresh).unwrap();
+}
+
+#[test]
 fn a_topic_admits_the_processes_of_its_run_and_names_the_limit_past_them() {
     let run = unique_run("limits");
     let limits = ShmLimits::for_processes(40);

@@ -5,6 +5,7 @@
 
 use std::collections::HashSet;
 use std::path::Path;
+use std::time::Duration;
 
 use iceoryx2::prelude::Config;
 use serde::Deserialize;
@@ -35,6 +36,14 @@ pub(super) fn finish_half_made(config: &Config, node: &str) {
     }
 }
 
+/// An empty node directory left alone past [`ABANDONED_AFTER`] (its last change: made, or
+/// emptied by a cleanup under way). `remove_dir` takes only an empty directory.
+fn remove_if_abandoned(dir: &Path) -> bool {
+    let abandoned = (dir.metadata().and_then(|m| m.modified()))
+        .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER));
+    abandoned && std::fs::remove_dir(dir).is_ok()
+}
+
 /// What a node's details file says that this cleanup needs (it holds the node's config too).
 #[derive(Deserialize)]
 struct NodeDetails {
@@ -42,12 +51,18 @@ struct NodeDetails {
     name: String,
 }
 
+/// How long a node directory may stay empty before it is taken for abandoned: a node's
+/// details are written microseconds after its directory is made.
+const ABANDONED_AFTER: Duration = Duration::from_secs(60);
+
 /// Removes the node directories of pushgrasp processes killed before their node had a
 /// monitor token (`listed`: the ids of the nodes `Node::list` found), with the token's
 /// half-made files. Such a node joined no service, so its directory and token are all it
 /// left; but unlisted, no cleanup ever removes them. A node is taken only when its details
 /// name a pushgrasp process that is gone: a live one may be making its token now, and a
-/// node without readable details may be anyone's. Returns how many were removed.
+/// node whose details cannot be read may be anyone's, unless its directory has stayed
+/// empty past [`ABANDONED_AFTER`] (killed before its details were written). Returns how
+/// many were removed.
 pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> usize {
     let node_dir = config.global.node_dir();
     let node_dir = Path::new(node_dir.as_str());
@@ -67,6 +82,7 @@ pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> u
             .ok()
             .and_then(|text| toml::from_str::<NodeDetails>(&text).ok());
         let Some(details) = details else {
+            removed += usize::from(remove_if_abandoned(&entry.path()));
             continue;
         };
         let ours = details.name.starts_with(&format!("{PREFIX}/"));
