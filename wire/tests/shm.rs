@@ -767,28 +767,40 @@ fn a_node_killed_before_its_monitor_token_is_removed() {
 }
 
 #[test]
-fn an_empty_node_directory_left_for_minutes_is_removed() {
+fn a_node_directory_left_before_its_details_were_written_is_removed() {
+    use std::os::unix::fs::PermissionsExt;
     // What a process killed between making its node's directory and writing the node's
-    // details into it leaves: an empty directory, which no listing finds.
+    // details leaves: the directory, empty or with the details file half-written (empty,
+    // read-write), which no listing finds.
     let nodes = std::path::PathBuf::from(Config::default().global.node_dir().as_str());
     std::fs::create_dir_all(&nodes).unwrap();
     let nanos = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .unwrap()
         .as_nanos();
-    let [old, fresh] = [1, 2].map(|k| nodes.join(format!("{k}{nanos}")));
-    for dir in [&old, &fresh] {
+    let [empty, half, fresh] = [1, 2, 3].map(|k| nodes.join(format!("{k}{nanos}")));
+    let minutes_ago = SystemTime::now() - Duration::from_secs(180);
+    let age = |path: &std::path::Path| {
+        let file = std::fs::File::open(path).unwrap();
+        file.set_modified(minutes_ago).unwrap();
+    };
+    for dir in [&empty, &half, &fresh] {
         std::fs::create_dir(dir).unwrap();
     }
-    let minutes_ago = SystemTime::now() - Duration::from_secs(180);
-    std::fs::File::open(&old)
-        .unwrap()
-        .set_modified(minutes_ago)
-        .unwrap();
-    ShmTransport::remove_stale(&unique_run("empty")).unwrap();
+    let details = half.join("iox2_node.details");
+    std::fs::File::create(&details).unwrap();
+    std::fs::set_permissions(&details, PermissionsExt::from_mode(0o600)).unwrap();
+    for path in [&details, &half, &empty] {
+        age(path);
+    }
+    ShmTransport::remove_stale(&unique_run("undetailed")).unwrap();
     assert!(
-        !old.exists(),
+        !empty.exists(),
         "an empty node directory of 3 minutes ago is left"
+    );
+    assert!(
+        !half.exists(),
+        "a node directory with half-written details is left"
     );
     // One made just now may be getting its details.
     assert!(fresh.exists(), "a node directory made just now was removed");

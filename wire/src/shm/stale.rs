@@ -36,12 +36,20 @@ pub(super) fn finish_half_made(config: &Config, node: &str) {
     }
 }
 
-/// An empty node directory left alone past [`ABANDONED_AFTER`] (its last change: made, or
-/// emptied by a cleanup under way). `remove_dir` takes only an empty directory.
-fn remove_if_abandoned(dir: &Path) -> bool {
-    let abandoned = (dir.metadata().and_then(|m| m.modified()))
-        .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER));
-    abandoned && std::fs::remove_dir(dir).is_ok()
+/// A node directory that holds nothing but, at most, its details file half-written (not
+/// readable as details), neither changed for [`ABANDONED_AFTER`]: its process was killed
+/// before it had written them.
+fn remove_if_abandoned(dir: &Path, details_file: &str) -> bool {
+    let unchanged = |path: &Path| {
+        (path.metadata().and_then(|m| m.modified()))
+            .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER))
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    let nothing_else =
+        (entries.flatten()).all(|file| file.file_name() == details_file && unchanged(&file.path()));
+    nothing_else && unchanged(dir) && std::fs::remove_dir_all(dir).is_ok()
 }
 
 /// What a node's details file says that this cleanup needs (it holds the node's config too).
@@ -60,9 +68,9 @@ const ABANDONED_AFTER: Duration = Duration::from_secs(60);
 /// half-made files. Such a node joined no service, so its directory and token are all it
 /// left; but unlisted, no cleanup ever removes them. A node is taken only when its details
 /// name a pushgrasp process that is gone: a live one may be making its token now, and a
-/// node whose details cannot be read may be anyone's, unless its directory has stayed
-/// empty past [`ABANDONED_AFTER`] (killed before its details were written). Returns how
-/// many were removed.
+/// node whose details cannot be read may be anyone's, unless nothing in its directory has
+/// changed for [`ABANDONED_AFTER`] (killed before its details were written: see
+/// [`remove_if_abandoned`]). Returns how many were removed.
 pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> usize {
     let node_dir = config.global.node_dir();
     let node_dir = Path::new(node_dir.as_str());
@@ -82,7 +90,7 @@ pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> u
             .ok()
             .and_then(|text| toml::from_str::<NodeDetails>(&text).ok());
         let Some(details) = details else {
-            removed += usize::from(remove_if_abandoned(&entry.path()));
+            removed += usize::from(remove_if_abandoned(&entry.path(), &details_file));
             continue;
         };
         let ours = details.name.starts_with(&format!("{PREFIX}/"));
