@@ -176,9 +176,18 @@ impl HostBridge {
     }
 
     /// After the actors stopped: sends what they left and says this host is done (or, after
-    /// [`HostBridge::abandon`], throws it away, counted); then closes the session.
-    pub fn finish(self) -> Result<UpReport> {
+    /// [`HostBridge::abandon`], throws it away, counted); then closes the session. Once the
+    /// central host has been gone for `give_up`, what it has not taken is thrown away too:
+    /// it waits for hosts only so long after its stop order, then ends, and over a slow link
+    /// the actors' last steps can take longer than that.
+    pub fn finish(self, give_up: Duration) -> Result<UpReport> {
         self.flags.finishing.store(true, Ordering::Release);
+        while !self.up.is_finished() {
+            if self.central_gone_for() > give_up {
+                self.abandon();
+            }
+            std::thread::sleep(POLL);
+        }
         let up = self
             .up
             .join()
@@ -439,4 +448,41 @@ fn carry_down(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use wire::ChannelTransport;
+
+    /// A session that meets no other: no scouting, no endpoints.
+    fn lone_session() -> Session {
+        let mut config = zenoh::Config::default();
+        config
+            .insert_json5("scouting/multicast/enabled", "false")
+            .unwrap();
+        zenoh::open(config).wait().unwrap()
+    }
+
+    #[test]
+    fn a_host_whose_central_host_is_gone_gives_up_its_last_steps() {
+        let transport = Arc::new(ChannelTransport::new());
+        let bridge =
+            HostBridge::start(lone_session(), Keys::new("r"), "h", transport.clone()).unwrap();
+        // A stopped actor's last steps, which no central host will take.
+        let mut steps = transport.publisher(Topic::Steps).unwrap();
+        for _ in 0..3 {
+            steps.send(&[7; 100]).unwrap();
+        }
+        let (done, finished) = crossbeam_channel::bounded(1);
+        std::thread::spawn(move || {
+            let _ = done.send(bridge.finish(Duration::from_millis(300)));
+        });
+        let report = finished
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the host waited on for a central host that is gone")
+            .unwrap();
+        assert_eq!(report.abandoned, 3, "{report:?}");
+        assert_eq!(report.messages, 0, "{report:?}");
+    }
 }

@@ -181,7 +181,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     for problem in &problems {
         eprintln!("while stopping: {problem}");
     }
-    let sent = bridge.finish()?;
+    let sent = bridge.finish(give_up)?;
     let restarts = supervisor.restarts();
     supervisor.log.finish()?;
     let ended = match &outcome {
