@@ -36,21 +36,9 @@ pub(super) fn finish_half_made(config: &Config, node: &str) {
     }
 }
 
-/// A node directory that holds nothing but, at most, its details file half-written (not
-/// readable as details), neither changed for [`ABANDONED_AFTER`]: its process was killed
-/// before it had written them.
-fn remove_if_abandoned(dir: &Path, details_file: &str) -> bool {
-    let unchanged = |path: &Path| {
-        (path.metadata().and_then(|m| m.modified()))
-            .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER))
-    };
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return false;
-    };
-    let nothing_else =
-        (entries.flatten()).all(|file| file.file_name() == details_file && unchanged(&file.path()));
-    nothing_else && unchanged(dir) && std::fs::remove_dir_all(dir).is_ok()
-}
+/// How long nothing in a node directory without readable details may change before it is
+/// taken for abandoned: a node's details are written microseconds after its directory.
+const ABANDONED_AFTER: Duration = Duration::from_secs(60);
 
 /// What a node's details file says that this cleanup needs (it holds the node's config too).
 #[derive(Deserialize)]
@@ -58,10 +46,6 @@ struct NodeDetails {
     process: u32,
     name: String,
 }
-
-/// How long a node directory may stay empty before it is taken for abandoned: a node's
-/// details are written microseconds after its directory is made.
-const ABANDONED_AFTER: Duration = Duration::from_secs(60);
 
 /// Removes the node directories of pushgrasp processes killed before their node had a
 /// monitor token (`listed`: the ids of the nodes `Node::list` found), with the token's
@@ -108,4 +92,20 @@ pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> u
         }
     }
     removed
+}
+
+/// A node directory that holds nothing but, at most, its details file half-written (not
+/// readable as details), neither changed for [`ABANDONED_AFTER`]: its process was killed
+/// before it had written them.
+fn remove_if_abandoned(dir: &Path, details_file: &str) -> bool {
+    let unchanged = |path: &Path| {
+        (path.metadata().and_then(|m| m.modified()))
+            .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER))
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    let nothing_else =
+        (entries.flatten()).all(|file| file.file_name() == details_file && unchanged(&file.path()));
+    nothing_else && unchanged(dir) && std::fs::remove_dir_all(dir).is_ok()
 }
