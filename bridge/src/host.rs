@@ -118,28 +118,42 @@ impl HostBridge {
             central_gone_since: Mutex::new(Some(Instant::now())),
             ..Flags::default()
         });
-        let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<()>>(1);
+        // Each thread reports once its ends are open: steps published before the up thread
+        // subscribed would be lost, and weights before the down thread did.
+        let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<()>>(2);
         let down = {
-            let (session, keys, flags, transport) = (
+            let (session, keys, flags, transport, ready) = (
                 session.clone(),
                 keys.clone(),
                 flags.clone(),
                 transport.clone(),
+                ready_tx.clone(),
             );
             std::thread::Builder::new()
                 .name("bridge-down".into())
-                .spawn(move || carry_down(&session, &keys, &flags, transport.as_ref(), ready_tx))?
+                .spawn(move || carry_down(&session, &keys, &flags, transport.as_ref(), ready))?
         };
-        ready_rx
-            .recv()
-            .unwrap_or_else(|_| Err(anyhow::anyhow!("the bridge's down thread ended")))?;
         let up = {
             let (session, flags, host) = (session.clone(), flags.clone(), host.to_owned());
             let keys = keys.clone();
             std::thread::Builder::new()
                 .name("bridge-up".into())
-                .spawn(move || carry_up(&session, &keys, &host, &flags, transport.as_ref()))?
+                .spawn(move || {
+                    carry_up(&session, &keys, &host, &flags, transport.as_ref(), ready_tx)
+                })?
         };
+        for _ in 0..2 {
+            let opened = ready_rx
+                .recv()
+                .unwrap_or_else(|_| Err(anyhow::anyhow!("a bridge thread ended")));
+            if let Err(e) = opened {
+                // The other thread ends too.
+                for flag in [&flags.finishing, &flags.abandon, &flags.closed] {
+                    flag.store(true, Ordering::Release);
+                }
+                return Err(e);
+            }
+        }
         let token = session
             .liveliness()
             .declare_token(keys.host(host))
@@ -313,6 +327,19 @@ fn put(publisher: &Publisher<'_>, parcel: ZBytes) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("sending steps: {e}"))
 }
 
+/// Opens a bridge thread's ends and tells [`HostBridge::start`] whether that worked.
+fn opened<T>(
+    ready: crossbeam_channel::Sender<Result<()>>,
+    open: impl FnOnce() -> Result<T>,
+) -> Result<T> {
+    let ends = open();
+    let _ = ready.send(match &ends {
+        Ok(_) => Ok(()),
+        Err(e) => Err(anyhow::anyhow!("{e:#}")),
+    });
+    ends
+}
+
 /// The local actors' steps and episode ends up in parcels, their reports as they come.
 fn carry_up(
     session: &Session,
@@ -320,15 +347,18 @@ fn carry_up(
     host: &str,
     flags: &Flags,
     transport: &dyn Transport,
+    ready: crossbeam_channel::Sender<Result<()>>,
 ) -> Result<UpReport> {
-    let mut steps_in = transport.subscriber(Topic::Steps)?;
-    let mut status_in = transport.subscriber(Topic::Status)?;
-    let steps_out = link::publisher(session, Stream::Steps, keys.stream(Stream::Steps, host))?;
-    let status_out = link::publisher(session, Stream::Status, keys.stream(Stream::Status, host))?;
-    let mut window = Window::new(link::newest_subscriber(
-        session,
-        keys.stream(Stream::Taken, host),
-    )?);
+    let (mut steps_in, mut status_in, steps_out, status_out, taken) = opened(ready, || {
+        Ok((
+            transport.subscriber(Topic::Steps)?,
+            transport.subscriber(Topic::Status)?,
+            link::publisher(session, Stream::Steps, keys.stream(Stream::Steps, host))?,
+            link::publisher(session, Stream::Status, keys.stream(Stream::Status, host))?,
+            link::newest_subscriber(session, keys.stream(Stream::Taken, host))?,
+        ))
+    })?;
+    let mut window = Window::new(taken);
     let mut report = UpReport::default();
     let mut packer = Packer::default();
     loop {
@@ -395,28 +425,19 @@ fn carry_down(
     transport: &dyn Transport,
     ready: crossbeam_channel::Sender<Result<()>>,
 ) -> Result<()> {
-    let subscriptions = (|| {
-        let weights_in = link::newest_subscriber(session, keys.stream(Stream::Weights, ""))?;
-        let control_in = link::subscriber(session, keys.stream(Stream::Control, ""))?;
-        let central = session
-            .liveliness()
-            .declare_subscriber(keys.central())
-            .history(true)
-            .wait()
-            .map_err(|e| anyhow::anyhow!("watching the central host: {e}"))?;
-        let weights_out = transport.publisher(Topic::Weights)?;
-        anyhow::Ok((weights_in, control_in, central, weights_out))
-    })();
-    let (weights_in, control_in, central, mut weights_out) = match subscriptions {
-        Ok(ends) => {
-            let _ = ready.send(Ok(()));
-            ends
-        }
-        Err(e) => {
-            let _ = ready.send(Err(anyhow::anyhow!("{e:#}")));
-            return Err(e);
-        }
-    };
+    let (weights_in, control_in, central, mut weights_out) = opened(ready, || {
+        Ok((
+            link::newest_subscriber(session, keys.stream(Stream::Weights, ""))?,
+            link::subscriber(session, keys.stream(Stream::Control, ""))?,
+            session
+                .liveliness()
+                .declare_subscriber(keys.central())
+                .history(true)
+                .wait()
+                .map_err(|e| anyhow::anyhow!("watching the central host: {e}"))?,
+            transport.publisher(Topic::Weights)?,
+        ))
+    })?;
     let mut last_refresh = Instant::now();
     while !flags.closed.load(Ordering::Acquire) {
         while let Some(sample) = central.try_recv().map_err(|e| anyhow::anyhow!("{e}"))? {
