@@ -808,6 +808,55 @@ fn a_node_directory_left_before_its_details_were_written_is_removed() {
 }
 
 #[test]
+fn a_service_left_locked_by_a_killed_process_is_removed_and_its_run_resumes() {
+    use std::os::unix::fs::PermissionsExt;
+    let run = unique_run("locked");
+    let config = Config::default();
+    // The static config of the run's steps service, named by the service's hash.
+    let static_config = {
+        let transport = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
+        let _steps = transport.subscriber(Topic::Steps).unwrap();
+        iceoryx2_names_of(&run)
+            .into_iter()
+            .find_map(|name| {
+                let file = std::path::Path::new(config.global.service_dir().as_str())
+                    .join(format!("iox2_{name}.service"));
+                file.exists().then_some(file)
+            })
+            .expect("the steps service's static config")
+    };
+    assert!(!static_config.exists(), "the service outlived its process");
+    // What a process killed between making the service's static config and writing it
+    // leaves: the file empty and read-write, which says the service is being made. (Made
+    // just now, other tests' cleanups leave it.)
+    std::fs::File::create(&static_config).unwrap();
+    std::fs::set_permissions(&static_config, PermissionsExt::from_mode(0o600)).unwrap();
+    let resumed = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
+    assert!(
+        resumed.subscriber(Topic::Steps).is_err(),
+        "a service left locked was opened"
+    );
+    ShmTransport::remove_stale(&run).unwrap();
+    assert!(
+        static_config.exists(),
+        "a service locked just now was removed"
+    );
+    let three_minutes_ago = SystemTime::now() - Duration::from_secs(180);
+    std::fs::File::open(&static_config)
+        .unwrap()
+        .set_modified(three_minutes_ago)
+        .unwrap();
+    ShmTransport::remove_stale(&run).unwrap();
+    assert!(
+        !static_config.exists(),
+        "a service locked 3 minutes ago is left"
+    );
+    resumed
+        .subscriber(Topic::Steps)
+        .expect("the run's service once its locked static config is gone");
+}
+
+#[test]
 fn a_topic_admits_the_processes_of_its_run_and_names_the_limit_past_them() {
     let run = unique_run("limits");
     let limits = ShmLimits::for_processes(40);

@@ -79,6 +79,9 @@ pub struct StaleCleanup {
     pub failed: usize,
     /// Process ids of the run's live processes: a run with this id is still going.
     pub alive: Vec<i32>,
+    /// Services of any run left locked by a process killed as it made them
+    /// ([`stale::remove_locked_services`]), removed.
+    pub locked_services: usize,
 }
 
 impl ShmTransport {
@@ -126,7 +129,8 @@ impl ShmTransport {
     /// details gone, is of no run anyone can name, so it is cleaned up whatever run asks, as
     /// iceoryx2 itself cleans up every dead node of any run when a node is created. So is
     /// a node killed before it had a monitor token, which iceoryx2 cannot find at all
-    /// ([`stale::remove_unmonitored`]).
+    /// ([`stale::remove_unmonitored`]), and a service whose creator was killed before it
+    /// wrote its static config ([`stale::remove_locked_services`]).
     pub fn remove_stale(run_id: &str) -> Result<StaleCleanup, TransportError> {
         check_run_id(run_id)?;
         let config = config()?;
@@ -164,6 +168,7 @@ impl ShmTransport {
             }
         }
         report.removed += stale::remove_unmonitored(&config, &listed);
+        report.locked_services = stale::remove_locked_services(&config);
         Ok(report)
     }
 

@@ -1,7 +1,8 @@
-//! What killed processes leave of their iceoryx2 nodes that iceoryx2 0.10's own cleanup
-//! never removes. A node is made in three steps: its directory with its details, then its
-//! monitor token (by which `Node::list`, and so every cleanup, finds it), then its service
-//! and port tags. A process killed inside a step leaves what the cleanup cannot see.
+//! What killed processes leave of their iceoryx2 nodes and services that iceoryx2 0.10's own
+//! cleanup never removes. A node is made in three steps: its directory with its details,
+//! then its monitor token (by which `Node::list`, and so every cleanup, finds it), then its
+//! service and port tags. A service's static config is made locked, then written. A process
+//! killed inside a step leaves what the cleanup cannot see.
 
 use std::collections::HashSet;
 use std::path::Path;
@@ -94,18 +95,59 @@ pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> u
     removed
 }
 
+/// Removes the static configs of services whose creator was killed before it wrote them:
+/// iceoryx2 makes a service's static config read-write and empty (locked), writes it and
+/// makes it read-only at once. A locked one tells every process that would open or create
+/// the service that it is being made, so the service's name stays unusable (a run resumed
+/// under its id cannot open its topics) and no cleanup removes it. Its owner cannot be read,
+/// so it is taken only once unchanged for [`ABANDONED_AFTER`]. Returns how many were removed.
+pub(super) fn remove_locked_services(config: &Config) -> usize {
+    use std::os::unix::fs::PermissionsExt;
+    let (prefix, suffix) = (
+        config.global.prefix.to_string(),
+        config
+            .global
+            .service
+            .static_config_storage_suffix
+            .to_string(),
+    );
+    let service_dir = config.global.service_dir();
+    let Ok(entries) = std::fs::read_dir(service_dir.as_str()) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let locked = entry
+            .metadata()
+            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o777 == 0o600 && unchanged(&m));
+        if name.starts_with(&prefix)
+            && name.ends_with(&suffix)
+            && locked
+            && std::fs::remove_file(entry.path()).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+/// Whether a file or directory has not changed for [`ABANDONED_AFTER`].
+fn unchanged(metadata: &std::fs::Metadata) -> bool {
+    metadata
+        .modified()
+        .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER))
+}
+
 /// A node directory that holds nothing but, at most, its details file half-written (not
 /// readable as details), neither changed for [`ABANDONED_AFTER`]: its process was killed
 /// before it had written them.
 fn remove_if_abandoned(dir: &Path, details_file: &str) -> bool {
-    let unchanged = |path: &Path| {
-        (path.metadata().and_then(|m| m.modified()))
-            .is_ok_and(|changed| changed.elapsed().is_ok_and(|age| age > ABANDONED_AFTER))
-    };
+    let left = |path: &Path| path.metadata().is_ok_and(|m| unchanged(&m));
     let Ok(entries) = std::fs::read_dir(dir) else {
         return false;
     };
     let nothing_else =
-        (entries.flatten()).all(|file| file.file_name() == details_file && unchanged(&file.path()));
-    nothing_else && unchanged(dir) && std::fs::remove_dir_all(dir).is_ok()
+        (entries.flatten()).all(|file| file.file_name() == details_file && left(&file.path()));
+    nothing_else && left(dir) && std::fs::remove_dir_all(dir).is_ok()
 }
