@@ -37,8 +37,9 @@ pub(super) fn finish_half_made(config: &Config, node: &str) {
     }
 }
 
-/// How long nothing in a node directory without readable details may change before it is
-/// taken for abandoned: a node's details are written microseconds after its directory.
+/// How long a half-made file whose owner cannot be read (a node directory without readable
+/// details, a locked service) may stay unchanged before it is taken for abandoned: iceoryx2
+/// finishes each microseconds after it begins it.
 const ABANDONED_AFTER: Duration = Duration::from_secs(60);
 
 /// What a node's details file says that this cleanup needs (it holds the node's config too).
