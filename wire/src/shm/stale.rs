@@ -28,10 +28,7 @@ pub(super) fn finish_half_made(config: &Config, node: &str) {
         return;
     };
     for entry in entries.flatten() {
-        let half_made = entry
-            .metadata()
-            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o777 == 0o600);
-        if half_made {
+        if entry.metadata().is_ok_and(|m| being_written(&m)) {
             let _ = std::fs::set_permissions(entry.path(), PermissionsExt::from_mode(0o400));
         }
     }
@@ -103,7 +100,6 @@ pub(super) fn remove_unmonitored(config: &Config, listed: &HashSet<String>) -> u
 /// under its id cannot open its topics) and no cleanup removes it. Its owner cannot be read,
 /// so it is taken only once unchanged for [`ABANDONED_AFTER`]. Returns how many were removed.
 pub(super) fn remove_locked_services(config: &Config) -> usize {
-    use std::os::unix::fs::PermissionsExt;
     let (prefix, suffix) = (
         config.global.prefix.to_string(),
         config
@@ -121,7 +117,7 @@ pub(super) fn remove_locked_services(config: &Config) -> usize {
         let name = entry.file_name().to_string_lossy().into_owned();
         let locked = entry
             .metadata()
-            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o777 == 0o600 && unchanged(&m));
+            .is_ok_and(|m| being_written(&m) && unchanged(&m));
         if name.starts_with(&prefix)
             && name.ends_with(&suffix)
             && locked
@@ -131,6 +127,13 @@ pub(super) fn remove_locked_services(config: &Config) -> usize {
         }
     }
     removed
+}
+
+/// Whether a file is one iceoryx2 has begun and not finished: it makes its files read-write
+/// (0600) and read-only once written.
+fn being_written(metadata: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::PermissionsExt;
+    metadata.is_file() && metadata.permissions().mode() & 0o777 == 0o600
 }
 
 /// Whether a file or directory has not changed for [`ABANDONED_AFTER`].
