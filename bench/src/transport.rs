@@ -30,8 +30,11 @@ use wire::{ShmLimits, ShmTransport, Topic, Transport};
 
 use super::{median, print_figures};
 
-/// The bench's processes (up to 4 publishers and a subscriber) open its topics with these.
-const LIMITS: ShmLimits = ShmLimits::for_processes(5);
+/// The limits the bench's processes (up to 4 publishers and a subscriber) open its topics
+/// with, for its messages of `--size` bytes.
+fn limits(args: &TransportBenchArgs) -> ShmLimits {
+    ShmLimits::for_run(5, args.size)
+}
 
 #[derive(Args)]
 pub struct TransportBenchArgs {
@@ -383,7 +386,7 @@ fn shm_receive(
     publisher_cpu: Option<usize>,
 ) -> Result<Duration> {
     let time = {
-        let transport = ShmTransport::new(run, "bench-subscriber", LIMITS)?;
+        let transport = ShmTransport::new(run, "bench-subscriber", limits(args))?;
         let mut subscriber = transport.subscriber(Topic::Steps)?;
         let mut children = Publishers::start(
             Via::Iceoryx2,
@@ -645,7 +648,7 @@ fn shm_latency(args: &TransportBenchArgs, run: &str) -> Result<(f64, f64)> {
     let messages = args.latency_messages.max(1);
     let mut latencies = Vec::with_capacity(messages);
     {
-        let transport = ShmTransport::new(run, "bench-subscriber", LIMITS)?;
+        let transport = ShmTransport::new(run, "bench-subscriber", limits(args))?;
         let mut subscriber = transport.subscriber(Topic::Steps)?;
         let mut child = Publishers::start(Via::Iceoryx2Latency, run, 1, messages, args.size, None)?;
         child.wait_ready()?;
@@ -709,8 +712,11 @@ fn publish(via: Via, args: &TransportBenchArgs) -> Result<()> {
     };
     match via {
         Via::Iceoryx2 | Via::Iceoryx2Latency => {
-            let transport =
-                ShmTransport::new(&args.to, &format!("bench-publisher-{}", args.index), LIMITS)?;
+            let transport = ShmTransport::new(
+                &args.to,
+                &format!("bench-publisher-{}", args.index),
+                limits(args),
+            )?;
             let mut publisher = transport.publisher(Topic::Steps)?;
             ready_then_go(&mut stdin)?;
             for seq in 0..args.messages as u64 {

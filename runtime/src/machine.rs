@@ -39,6 +39,7 @@ pub struct Demand {
     /// Every process that opens the run's topics: the actors, and the launcher, buffer and
     /// learner (or a joined host's bridge).
     processes: u64,
+    limits: ShmLimits,
     shm: ShmFootprint,
     /// Bytes one actor process holds resident, all its environments.
     actor_bytes: u64,
@@ -65,14 +66,13 @@ impl Demand {
     pub fn new(config: &RunConfig, actors: u32, others: u32, replay_bytes: u64) -> Result<Self> {
         let processes = u64::from(actors) + u64::from(others);
         let side = config.side();
-        let step = wire::largest_step(config.sim.grid()?);
+        let limits = shm_limits(config, processes as usize)?;
         let weights = QNets::new(&config.net, &Backend::Cpu.open()?.device)
             .to_bytes()?
             .len();
         let largest = LargestMessages {
-            step,
             // Each item at most its observation and a push's next one, as steps carry them.
-            batch: config.learner.batch_size as usize * 2 * step,
+            batch: config.learner.batch_size as usize * 2 * limits.largest_step(),
             weights,
         };
         let widest = config.net.trunk_widths.iter().copied().max().unwrap_or(1) as u64;
@@ -82,7 +82,8 @@ impl Demand {
             actors: u64::from(actors),
             envs_per_actor,
             processes,
-            shm: limits(processes, envs_per_actor).footprint(&largest),
+            limits,
+            shm: limits.footprint(&largest),
             actor_bytes: ACTOR_BASE_BYTES
                 + ACTOR_BYTES_PER_PIXEL_CHANNEL * pixels * widest
                 + ENV_BYTES_PER_PIXEL * pixels * envs_per_actor.saturating_sub(1),
@@ -92,7 +93,7 @@ impl Demand {
 
     /// The limits every process of the run opens its topics with.
     pub fn limits(&self) -> ShmLimits {
-        limits(self.processes, self.envs_per_actor)
+        self.limits
     }
 
     /// For the run's start line: its processes and their shared memory.
@@ -184,8 +185,13 @@ impl Allowance {
     }
 }
 
-fn limits(processes: u64, envs_per_actor: u64) -> ShmLimits {
-    ShmLimits::for_processes(processes as usize).with_envs_per_process(envs_per_actor as usize)
+/// The limits every process of a run of `config` with `processes` processes on this machine
+/// opens its topics with: the launcher's, and each role's from the same configuration.
+pub fn shm_limits(config: &RunConfig, processes: usize) -> Result<ShmLimits> {
+    Ok(
+        ShmLimits::for_run(processes, wire::largest_step(config.sim.grid()?))
+            .with_envs_per_process(config.envs_per_actor as usize),
+    )
 }
 
 fn megabytes(bytes: u64) -> String {

@@ -237,8 +237,7 @@ pub fn role_process(args: &RoleArgs) -> Result<()> {
     let dir = RunDir::new(&args.run_dir);
     let config = RunConfig::load(&dir.config())?;
     let id = args.id();
-    let limits = wire::ShmLimits::for_processes(args.shm_processes)
-        .with_envs_per_process(config.envs_per_actor as usize);
+    let limits = crate::machine::shm_limits(&config, args.shm_processes)?;
     let transport = wire::ShmTransport::new(&args.shm_namespace, &id.name(), limits)?;
     let from = StartFrom {
         resume: args.resume,

@@ -30,6 +30,13 @@ pub trait Subscriber {
     /// Hands the oldest unread message to `sink` (in place where the transport allows) and
     /// returns true, or returns false when none is waiting.
     fn receive(&mut self, sink: &mut dyn FnMut(&[u8])) -> Result<bool, TransportError>;
+
+    /// Connects to publishers that joined since the last look, as `receive` does first:
+    /// from then on what they send stays readable after they exit (shared memory; channels
+    /// keep every message anyway). A reader that goes a while without receiving calls it.
+    fn refresh(&mut self) -> Result<(), TransportError> {
+        Ok(())
+    }
 }
 
 /// Sends [`Message`]s on a topic.
@@ -80,6 +87,11 @@ impl Inbox {
         self.subscriber
             .receive(&mut |bytes| decoded = Some(decode(bytes)))?;
         Ok(decoded.transpose()?)
+    }
+
+    /// See [`Subscriber::refresh`].
+    pub fn refresh(&mut self) -> Result<(), TransportError> {
+        self.subscriber.refresh()
     }
 
     /// Every message waiting now, oldest first; stops at the first bad one.

@@ -20,8 +20,8 @@ const RUN: &str = "PUSHGRASP_SHM_TEST_RUN";
 const ARG: &str = "PUSHGRASP_SHM_TEST_ARG";
 const READY: &str = "@@ready@@";
 const PATIENCE: Duration = Duration::from_secs(30);
-/// The tests' runs have a few processes each.
-const LIMITS: ShmLimits = ShmLimits::for_processes(8);
+/// The tests' runs have a few processes each, and steps of up to 512 KiB (`numbered_len`).
+const LIMITS: ShmLimits = ShmLimits::for_run(8, 512 * 1024);
 
 fn unique_run(tag: &str) -> String {
     let nanos = SystemTime::now()
@@ -420,6 +420,70 @@ fn what_a_killed_publisher_delivered_is_still_received() {
         restarted.kill();
     }
     ShmTransport::remove_stale(&run).unwrap();
+    assert_run_left_nothing(&run);
+}
+
+/// An actor that stops and exits before the buffer read any of its steps (the buffer was
+/// holding them back for the learner): once the buffer has connected to it, they all arrive.
+#[test]
+fn steps_a_publisher_sent_before_it_exited_are_received_though_none_was_read_while_it_lived() {
+    const TEST: &str =
+        "steps_a_publisher_sent_before_it_exited_are_received_though_none_was_read_while_it_lived";
+    let sent = Topic::Steps.buffer() as u64;
+    if let Some((_, run, _)) = helper_role() {
+        let transport = ShmTransport::new(&run, "actor", LIMITS).unwrap();
+        let mut publisher = transport.publisher(Topic::Steps).unwrap();
+        say_ready();
+        wait_for_stdin_to_close();
+        let mut bytes = Vec::new();
+        for seq in 0..sent {
+            numbered(0, seq, &mut bytes);
+            publisher.send(&bytes).unwrap();
+        }
+        return;
+    }
+    let run = unique_run("exited-pub");
+    {
+        let transport = ShmTransport::new(&run, "buffer", LIMITS).unwrap();
+        let mut subscriber = transport.subscriber(Topic::Steps).unwrap();
+        let mut actor = helper(TEST, "actor", &run, "");
+        actor.wait_ready();
+        subscriber.refresh().unwrap();
+        // The actor sends its steps, the largest first, and exits.
+        actor.finish();
+        for seq in 0..sent {
+            let received = poll("a step of the exited actor", || {
+                let mut got = None;
+                subscriber
+                    .receive(&mut |bytes| got = Some(check_numbered(bytes)))
+                    .unwrap();
+                got
+            });
+            assert_eq!(received, (0, seq));
+        }
+        assert!(!subscriber.receive(&mut |_| ()).unwrap());
+    }
+    assert_run_left_nothing(&run);
+}
+
+#[test]
+fn a_step_larger_than_the_runs_largest_is_refused_with_both_sizes() {
+    let run = unique_run("oversize");
+    {
+        let transport = ShmTransport::new(&run, "actor", LIMITS).unwrap();
+        let _buffer = transport.subscriber(Topic::Steps).unwrap();
+        let mut publisher = transport.publisher(Topic::Steps).unwrap();
+        let largest = LIMITS.largest_step();
+        publisher.send(&vec![1; largest]).unwrap();
+        let err = publisher
+            .send(&vec![1; largest + 1])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&format!("{} bytes", largest + 1)) && err.contains(&largest.to_string()),
+            "{err}"
+        );
+    }
     assert_run_left_nothing(&run);
 }
 
@@ -859,7 +923,7 @@ fn a_service_left_locked_by_a_killed_process_is_removed_and_its_run_resumes() {
 #[test]
 fn a_topic_admits_the_processes_of_its_run_and_names_the_limit_past_them() {
     let run = unique_run("limits");
-    let limits = ShmLimits::for_processes(40);
+    let limits = ShmLimits::for_run(40, 1000);
     // A process for each, as in a run: 80 nodes (each process, and a dead one's room).
     let transports: Vec<ShmTransport> = (0..81)
         .map(|i| ShmTransport::new(&run, &format!("role-{i}"), limits).unwrap())
@@ -895,9 +959,8 @@ fn segment_bytes(run: &str) -> (u64, u64) {
 fn a_runs_footprint_is_what_its_segments_reserve_and_bounds_what_they_hold() {
     let run = unique_run("footprint");
     let processes = 3;
-    let limits = ShmLimits::for_processes(processes);
+    let limits = ShmLimits::for_run(processes, 100_000);
     let largest = LargestMessages {
-        step: 100_000,
         batch: 30_000,
         weights: 200_000,
     };
@@ -921,7 +984,7 @@ fn a_runs_footprint_is_what_its_segments_reserve_and_bounds_what_they_hold() {
         for topic in [Topic::Steps, Topic::Status] {
             let mut publisher = transport.publisher(topic).unwrap();
             publisher
-                .send(&vec![1; largest_of(&largest, topic)])
+                .send(&vec![1; largest_of(limits, &largest, topic)])
                 .unwrap();
             sent.push(publisher);
         }
@@ -934,7 +997,7 @@ fn a_runs_footprint_is_what_its_segments_reserve_and_bounds_what_they_hold() {
     ] {
         let mut publisher = transport.publisher(topic).unwrap();
         publisher
-            .send(&vec![1; largest_of(&largest, topic)])
+            .send(&vec![1; largest_of(limits, &largest, topic)])
             .unwrap();
         sent.push(publisher);
     }
@@ -951,9 +1014,9 @@ fn a_runs_footprint_is_what_its_segments_reserve_and_bounds_what_they_hold() {
     );
 }
 
-fn largest_of(largest: &LargestMessages, topic: Topic) -> usize {
+fn largest_of(limits: ShmLimits, largest: &LargestMessages, topic: Topic) -> usize {
     match topic {
-        Topic::Steps => largest.step,
+        Topic::Steps => limits.largest_step(),
         Topic::Batches => largest.batch,
         Topic::Weights => largest.weights,
         _ => 1000,

@@ -162,6 +162,9 @@ impl Inflow {
         log: &RunLog,
         stopping: bool,
     ) -> Result<bool> {
+        // Connect to actors that joined even while holding their steps back: what they
+        // send is then kept for this buffer if they stop and exit before it reads them.
+        steps.refresh()?;
         let mut busy = false;
         while self.actors_stopped || stopping || role.replay.can_insert(1) {
             if self.staged.is_empty() {

@@ -4,8 +4,8 @@
 //! iceoryx2 fixes a service's limits when the first process creates it and refuses a port
 //! past them (`ExceedsMaxSupportedSubscribers`), and it reserves each publisher's memory for
 //! the worst case its limits allow: max subscribers times the messages each may hold
-//! (buffer and borrowed), plus history and the publisher's loans, each message rounded up
-//! to a power of two. A reserved page takes memory only once written (the segments are
+//! (buffer and borrowed), plus history and the publisher's loans, each message the run's
+//! largest step or, on other topics, rounded up to a power of two. A reserved page takes memory only once written (the segments are
 //! sparse files in /dev/shm), so a run's footprint is two figures: what its files reserve,
 //! and what its messages can write at most.
 
@@ -25,35 +25,26 @@ const SINGLE: usize = 4;
 const LOANS: usize = 2;
 
 /// The processes of one run on one machine that open its topics (a launcher or a joined
-/// host, and the roles it starts), from which every topic's limits follow. Every process of
-/// the run must open its topics with the same limits, so the launcher gives its own to the
-/// roles it starts.
+/// host, and the roles it starts), from which every topic's limits follow, and the largest
+/// step they send. Every process of the run must open its topics with the same limits, so
+/// the launcher gives its own to the roles it starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShmLimits {
     processes: usize,
     /// Environments an actor process steps, whose messages its one publisher of steps
     /// sends together.
     envs_per_process: usize,
+    /// The largest message on the steps topic, in bytes as encoded (`largest_step`): what a
+    /// publisher of steps reserves each message up front (see `ShmTransport::publisher`).
+    largest_step: usize,
 }
 
-/// The largest message of the topics whose messages can outgrow the first slice a
-/// publisher reserves, in bytes as encoded.
+/// The largest message of the topics other than steps whose messages can outgrow the first
+/// slice a publisher reserves, in bytes as encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LargestMessages {
-    pub step: usize,
     pub batch: usize,
     pub weights: usize,
-}
-
-impl LargestMessages {
-    fn of(&self, topic: Topic) -> usize {
-        match topic {
-            Topic::Steps => self.step,
-            Topic::Batches => self.batch,
-            Topic::Weights => self.weights,
-            Topic::Requests | Topic::Control | Topic::Status => INITIAL_SLICE,
-        }
-    }
 }
 
 /// A run's shared memory in bytes: what its publishers' files reserve, and what their
@@ -65,11 +56,13 @@ pub struct ShmFootprint {
 }
 
 impl ShmLimits {
-    /// Limits for a run of `processes` processes on this machine (at least one).
-    pub const fn for_processes(processes: usize) -> Self {
+    /// Limits for a run of `processes` processes on this machine (at least one), whose
+    /// steps are at most `largest_step` bytes as encoded.
+    pub const fn for_run(processes: usize, largest_step: usize) -> Self {
         Self {
             processes: if processes == 0 { 1 } else { processes },
             envs_per_process: 1,
+            largest_step,
         }
     }
 
@@ -83,6 +76,10 @@ impl ShmLimits {
 
     pub fn processes(self) -> usize {
         self.processes
+    }
+
+    pub fn largest_step(self) -> usize {
+        self.largest_step
     }
 
     /// Unread messages a subscriber of `topic` holds per publisher.
@@ -118,7 +115,7 @@ impl ShmLimits {
                 Fan::ManyToOne => (self.processes, 1),
                 Fan::OneToMany => (1, self.processes),
             };
-            let slot = largest.of(topic).max(INITIAL_SLICE).next_power_of_two() as u64;
+            let slot = self.slot(topic, largest) as u64;
             // A reader holds its unread buffer, the message it reads and those it keeps.
             let held = self.buffer(topic) + 1 + kept(topic);
             let slots = |subscribers: usize| (subscribers * held + topic.history() + LOANS) as u64;
@@ -126,6 +123,18 @@ impl ShmLimits {
             footprint.written += publishers as u64 * slots(readers) * slot;
         }
         footprint
+    }
+
+    /// The memory a publisher of `topic` reserves for each message: a step exactly (its
+    /// memory is reserved up front), others in powers of two from the first slice.
+    fn slot(self, topic: Topic, largest: &LargestMessages) -> usize {
+        let grown = |bytes: usize| bytes.max(INITIAL_SLICE).next_power_of_two();
+        match topic {
+            Topic::Steps => self.largest_step,
+            Topic::Batches => grown(largest.batch),
+            Topic::Weights => grown(largest.weights),
+            Topic::Requests | Topic::Control | Topic::Status => INITIAL_SLICE,
+        }
     }
 }
 
@@ -135,8 +144,8 @@ mod tests {
 
     #[test]
     fn limits_grow_with_the_run_where_every_process_takes_part() {
-        let small = ShmLimits::for_processes(5);
-        let large = ShmLimits::for_processes(131);
+        let small = ShmLimits::for_run(5, 100_000);
+        let large = ShmLimits::for_run(131, 100_000);
         assert_eq!(large.subscribers(Topic::Control), 262);
         assert_eq!(large.publishers(Topic::Steps), 262);
         assert_eq!(large.nodes(), 262);
@@ -144,37 +153,35 @@ mod tests {
             assert_eq!(small.publishers(topic), large.publishers(topic));
             assert_eq!(small.subscribers(topic), large.subscribers(topic));
         }
-        assert_eq!(ShmLimits::for_processes(0).processes(), 1);
+        assert_eq!(ShmLimits::for_run(0, 100_000).processes(), 1);
     }
 
     #[test]
     fn a_process_of_several_environments_gets_room_for_each_ones_steps() {
-        let limits = ShmLimits::for_processes(5).with_envs_per_process(4);
+        let limits = ShmLimits::for_run(5, 100_000).with_envs_per_process(4);
         assert_eq!(limits.buffer(Topic::Steps), 4 * Topic::Steps.buffer());
         assert_eq!(limits.buffer(Topic::Batches), Topic::Batches.buffer());
         let largest = LargestMessages {
-            step: 100_000,
             batch: 3_000,
             weights: 200_000,
         };
-        let one = ShmLimits::for_processes(5).footprint(&largest);
+        let one = ShmLimits::for_run(5, 100_000).footprint(&largest);
         let four = limits.footprint(&largest);
         assert!(four.written > one.written && four.reserved > one.reserved);
     }
 
     #[test]
-    fn a_footprint_counts_whole_power_of_two_slots() {
+    fn a_footprint_counts_steps_exactly_and_other_messages_in_power_of_two_slots() {
         let largest = LargestMessages {
-            step: 100_000,
             batch: 3_000,
             weights: 200_000,
         };
-        let one = ShmLimits::for_processes(1).footprint(&largest);
-        let two = ShmLimits::for_processes(2).footprint(&largest);
+        let one = ShmLimits::for_run(1, 100_000).footprint(&largest);
+        let two = ShmLimits::for_run(2, 100_000).footprint(&largest);
         // One more process: one more publisher of steps (one reader holding 4 + 1 + 3, and
-        // 2 loans, of 128 KiB), of status (1 x (256 + 1) + 2 of 4 KiB); one more reader of
-        // weights (1 + 1 of 256 KiB) and of control (16 + 1 of 4 KiB).
-        let written = 10 * 131_072 + 259 * 4096 + 2 * 262_144 + 17 * 4096;
+        // 2 loans, of 100,000 bytes), of status (1 x (256 + 1) + 2 of 4 KiB); one more
+        // reader of weights (1 + 1 of 256 KiB) and of control (16 + 1 of 4 KiB).
+        let written = 10 * 100_000 + 259 * 4096 + 2 * 262_144 + 17 * 4096;
         assert_eq!(two.written - one.written, written);
         assert!(two.reserved > two.written && one.reserved > one.written);
     }

@@ -14,10 +14,13 @@
 //!   until the subscriber reads, drops its end, or its process is found dead and cleaned up
 //!   (every new node cleans up dead ones, as does [`ShmTransport::remove_stale`]). A message
 //!   sent while no subscriber exists is dropped, as over channels.
-//! - What a publisher sent stays readable after it exits or is killed, once the subscriber
-//!   has connected to it. A publisher that exits before the subscriber first looked takes its
-//!   unread messages with it (a killed one, when it is cleaned up): a process makes sure its
-//!   last messages were read before it exits.
+//! - What a publisher of steps sent stays readable after it exits or is killed, once the
+//!   subscriber has connected to it: it reserves its memory for the run's largest step up
+//!   front, which the subscriber maps as it connects. (Memory that grows as messages do, as
+//!   on the other topics, is mapped only as its first message is read: an actor that exited
+//!   before the buffer read its first step took that step with it.) A publisher that exits
+//!   before the subscriber first looked (received, or [`Subscriber::refresh`]) takes its
+//!   unread messages with it (a killed one, when it is cleaned up).
 //! - A subscriber of steps returns a step's memory to its publisher only after reading three
 //!   more, or 250 us later (see `kept`), so a publisher's shared memory holds those too.
 //! - History (the newest weights, the newest order) reaches a subscriber that joins later
@@ -172,6 +175,16 @@ impl ShmTransport {
         Ok(report)
     }
 
+    /// How a publisher of `topic` holds its messages: steps in memory reserved for the run's
+    /// largest up front, which stays readable once the subscriber connected (see the
+    /// module's docs); other messages in memory that grows with them from a first slice.
+    fn memory(&self, topic: Topic) -> (AllocationStrategy, usize) {
+        match topic {
+            Topic::Steps => (AllocationStrategy::Static, self.limits.largest_step()),
+            _ => (AllocationStrategy::PowerOfTwo, INITIAL_SLICE),
+        }
+    }
+
     /// What a failed port creation was, with the limit that may have refused it.
     fn ports(&self, kind: &str, admitted: usize) -> String {
         format!(
@@ -295,12 +308,13 @@ impl Transport for ShmTransport {
             // Unused: the service overwrites the oldest message instead.
             Delivery::Latest => BackpressureStrategy::DiscardData,
         };
+        let (allocation, first_slice) = self.memory(topic);
         let publisher = service
             .publisher_builder()
             .backpressure_strategy(backpressure)
             .set_backpressure_handler(wait_for_room)
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
-            .initial_max_slice_len(INITIAL_SLICE)
+            .allocation_strategy(allocation)
+            .initial_max_slice_len(first_slice)
             .create()
             .map_err(|e| {
                 let admitted = self.limits.publishers(topic);
@@ -352,10 +366,18 @@ struct ShmPublisher {
 impl ShmPublisher {
     /// Sends once: to how many subscribers the message went.
     fn send_once(&self, bytes: &[u8]) -> Result<usize, TransportError> {
-        let sample = self
-            .publisher
-            .loan_slice_uninit(bytes.len())
-            .map_err(|e| backend(self.topic, "loaning shared memory", e))?;
+        let sample = self.publisher.loan_slice_uninit(bytes.len()).map_err(|e| {
+            let what = match self.publisher.allocation_strategy() {
+                AllocationStrategy::Static => format!(
+                    "loaning shared memory for a message of {} bytes, where the run's \
+                     largest is {}",
+                    bytes.len(),
+                    self.publisher.initial_max_slice_len()
+                ),
+                _ => "loaning shared memory".into(),
+            };
+            backend(self.topic, &what, e)
+        })?;
         sample
             .write_from_slice(bytes)
             .send()
@@ -417,6 +439,12 @@ impl ShmSubscriber {
 }
 
 impl Subscriber for ShmSubscriber {
+    fn refresh(&mut self) -> Result<(), TransportError> {
+        self.subscriber
+            .update_connections()
+            .map_err(|e| backend(self.topic, "connecting to new publishers", e))
+    }
+
     fn receive(&mut self, sink: &mut dyn FnMut(&[u8])) -> Result<bool, TransportError> {
         match self
             .subscriber
