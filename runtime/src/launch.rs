@@ -129,6 +129,26 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         Vec::new()
     });
     // A role that died wrote no report: its last status report's counts stand in.
+    let buffer = report_or(&dir.report(&supervisor.buffer().name()), || {
+        watch.progress.buffer_report()
+    })?;
+    let actors_reports = actor_reports(&dir)?;
+    // Of the actors this launch stopped in order (a launch before may have ended hung, its
+    // roles stopping by themselves in any order), with a buffer never restarted.
+    let stopped_here: Vec<ActorReport> = actors_reports
+        .iter()
+        .filter(|r| {
+            supervisor.started_actor(ActorId {
+                index: config.process_of(r.actor),
+                incarnation: r.incarnation,
+            })
+        })
+        .cloned()
+        .collect();
+    let unreceived_steps = match supervisor.buffer() {
+        RoleId::Buffer(0) => buffer.unreceived(&stopped_here),
+        _ => 0,
+    };
     let mut summary = Summary {
         run_id,
         actors: config.actors,
@@ -136,13 +156,12 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         restarts: supervisor.restarts(),
         interrupted: signals.interrupted(),
         wall_s: start.elapsed().as_secs_f64(),
-        buffer: report_or(&dir.report(&supervisor.buffer().name()), || {
-            watch.progress.buffer_report()
-        })?,
+        buffer,
         learner: report_or(&dir.report(&supervisor.learner().name()), || {
             watch.progress.learner_report()
         })?,
-        actors_reports: actor_reports(&dir)?,
+        actors_reports,
+        unreceived_steps,
         faults: supervisor.faults.clone(),
         failure: outcome.as_ref().err().map(|e| format!("{e:#}")),
         hosts,
@@ -155,11 +174,8 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     supervisor.log.finish()?;
     print_summary(&summary, &dir);
     outcome?;
-    if summary.buffer.lost() > 0 {
-        bail!(
-            "{} messages from the actors never arrived",
-            summary.buffer.lost()
-        );
+    if summary.lost() > 0 {
+        bail!("{} messages from the actors never arrived", summary.lost());
     }
     Ok(())
 }
@@ -307,7 +323,7 @@ fn print_summary(summary: &Summary, dir: &RunDir) {
         percent(summary.buffer.success_first30),
         percent(summary.buffer.success_last30),
         summary.buffer.steps_received,
-        summary.buffer.lost(),
+        summary.lost(),
         match summary.buffer.lost_in_restarts {
             0 => String::new(),
             n => format!(", {n} messages lost to restarts of the buffer"),

@@ -161,6 +161,10 @@ pub struct Summary {
     /// The reports of actors' environments that stopped cleanly (a killed one writes none; its steps are
     /// accounted for by the buffer's per-incarnation counts).
     pub actors_reports: Vec<ActorReport>,
+    /// Steps those actors sent that the buffer never received at the end of their streams
+    /// (`BufferReport::unreceived`). (Absent from summaries written before: none.)
+    #[serde(default)]
+    pub unreceived_steps: u64,
     /// Every role that failed, in order: restarted (the run went on) or not (the run ended).
     /// (Absent from summaries written before: none.)
     #[serde(default)]
@@ -176,6 +180,12 @@ pub struct Summary {
 }
 
 impl Summary {
+    /// Messages from this host's actors that never reached the buffer, unexplained: gaps in
+    /// their streams, and steps missing at their ends.
+    pub fn lost(&self) -> u64 {
+        self.buffer.lost() + self.unreceived_steps
+    }
+
     /// The summary of the run in `dir`, if it wrote one.
     pub fn read(dir: &RunDir) -> Result<Option<Summary>> {
         let path = dir.summary();

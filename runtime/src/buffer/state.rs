@@ -18,6 +18,7 @@ use wire::{
     Step,
 };
 
+use crate::actor::ActorReport;
 use crate::config::RunConfig;
 use crate::record::BUFFER_STATS;
 use crate::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
@@ -75,6 +76,27 @@ impl BufferReport {
     /// Messages that never arrived, unexplained (not lost to a restart of the buffer).
     pub fn lost(&self) -> u64 {
         self.streams.iter().map(|s| s.missing).sum()
+    }
+
+    /// Steps that `actors` (the reports of actors that stopped cleanly) sent and this buffer
+    /// never received: the lost end of a stream, which no gap in its sequence numbers shows.
+    /// None when this report has no per-stream counts (a dead buffer's last status). Only
+    /// for a buffer that was never restarted: a restart loses messages it counts apart.
+    pub fn unreceived(&self, actors: &[ActorReport]) -> u64 {
+        if self.streams.is_empty() && self.steps_received > 0 {
+            return 0;
+        }
+        actors
+            .iter()
+            .map(|actor| {
+                let received = self
+                    .streams
+                    .iter()
+                    .find(|s| s.actor == actor.actor && s.incarnation == actor.incarnation)
+                    .map_or(0, |s| s.steps);
+                actor.steps_sent.saturating_sub(received)
+            })
+            .sum()
     }
 }
 
@@ -420,4 +442,48 @@ struct SavedState {
     report: BufferReport,
     open: Vec<((u32, u32), Vec<u64>)>,
     outcomes: Vec<bool>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sent(actor: u32, incarnation: u32, steps_sent: u64) -> ActorReport {
+        ActorReport {
+            actor,
+            incarnation,
+            steps_sent,
+            ..ActorReport::default()
+        }
+    }
+
+    fn stream(actor: u32, incarnation: u32, steps: u64) -> StreamCount {
+        StreamCount {
+            actor,
+            incarnation,
+            steps,
+            next_seq: steps,
+            ..StreamCount::default()
+        }
+    }
+
+    #[test]
+    fn steps_missing_at_the_end_of_a_stream_are_unreceived() {
+        let report = BufferReport {
+            steps_received: 7,
+            streams: vec![stream(0, 0, 4), stream(1, 1, 3)],
+            ..BufferReport::default()
+        };
+        assert_eq!(report.lost(), 0, "no gap");
+        assert_eq!(report.unreceived(&[sent(0, 0, 4), sent(1, 1, 3)]), 0);
+        // Actor 1's last step, and the only one of an actor whose stream never opened.
+        let actors = [sent(0, 0, 4), sent(1, 1, 4), sent(2, 0, 1)];
+        assert_eq!(report.unreceived(&actors), 2);
+        // A dead buffer's last status has no per-stream counts: nothing can be said.
+        let from_status = BufferReport {
+            steps_received: 7,
+            ..BufferReport::default()
+        };
+        assert_eq!(from_status.unreceived(&actors), 0);
+    }
 }

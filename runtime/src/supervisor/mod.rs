@@ -11,6 +11,7 @@ use mcaplog::{LogLevel, RunLog};
 use serde::{Deserialize, Serialize};
 use wire::{ChannelTransport, Control, Message, Outbox, Role, ShmLimits};
 
+use crate::actor::ActorId;
 use crate::config::RunConfig;
 use crate::role::{RoleId, StartFrom, run_role};
 use crate::run_dir::RunDir;
@@ -231,6 +232,12 @@ impl Supervisor {
     /// The learner now running (its latest incarnation).
     pub fn learner(&self) -> RoleId {
         self.learner
+    }
+
+    /// Whether this launch started the actor process of `id` (not one of a launch before
+    /// that this run resumed).
+    pub fn started_actor(&self, id: ActorId) -> bool {
+        self.slots.iter().any(|s| s.spec == RoleId::Actor(id))
     }
 
     /// The next incarnation of each actor index a resumed run starts: one past any that ran
