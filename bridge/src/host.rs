@@ -260,10 +260,12 @@ impl Window {
 
     /// Waits until parcel `number` may go: the central host listens and has taken all but a
     /// few of those before it. False when told to abandon. While it waits the actors are
-    /// held back (`Flags::held_at`).
+    /// held back (`Flags::held_at`), and it connects to local actors that start meanwhile
+    /// (`steps_in`), so what they send before they stop outlives them.
     fn wait_for_room(
         &mut self,
         publisher: &Publisher<'_>,
+        steps_in: &mut dyn wire::Subscriber,
         number: u64,
         flags: &Flags,
     ) -> Result<bool> {
@@ -307,6 +309,7 @@ impl Window {
                 }
             }
             *lock(&flags.held_at) = Some(Instant::now());
+            steps_in.refresh()?;
             std::thread::sleep(POLL);
         }
     }
@@ -391,7 +394,7 @@ fn carry_up(
         let messages = packer.len() as u64;
         report.raw_bytes += packer.raw_len() as u64;
         let number = report.parcels + 1;
-        if !window.wait_for_room(&steps_out, number, flags)? {
+        if !window.wait_for_room(&steps_out, steps_in.as_mut(), number, flags)? {
             packer.clear();
             report.abandoned += messages;
             continue;
@@ -403,12 +406,17 @@ fn carry_up(
         report.parcels += 1;
     }
     let number = report.parcels + 1;
-    if window.wait_for_room(&steps_out, number, flags)? {
+    if window.wait_for_room(&steps_out, steps_in.as_mut(), number, flags)? {
         window.send(&steps_out, number, parcel::done(number))?;
         // Leave once the central host took it (its session may otherwise end first).
         let deadline = Instant::now() + Duration::from_secs(10);
         while window.newest_taken < number && Instant::now() < deadline {
-            window.wait_for_room(&steps_out, number + PARCELS_IN_FLIGHT, flags)?;
+            window.wait_for_room(
+                &steps_out,
+                steps_in.as_mut(),
+                number + PARCELS_IN_FLIGHT,
+                flags,
+            )?;
             std::thread::sleep(POLL);
         }
     }
