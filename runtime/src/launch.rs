@@ -133,22 +133,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         watch.progress.buffer_report()
     })?;
     let actors_reports = actor_reports(&dir)?;
-    // Of the actors this launch stopped in order (a launch before may have ended hung, its
-    // roles stopping by themselves in any order), with a buffer never restarted.
-    let stopped_here: Vec<ActorReport> = actors_reports
-        .iter()
-        .filter(|r| {
-            supervisor.started_actor(ActorId {
-                index: config.process_of(r.actor),
-                incarnation: r.incarnation,
-            })
-        })
-        .cloned()
-        .collect();
-    let unreceived_steps = match supervisor.buffer() {
-        RoleId::Buffer(0) => buffer.unreceived(&stopped_here),
-        _ => 0,
-    };
+    let unreceived_steps = unreceived_steps(&supervisor, &buffer, &actors_reports);
     let mut summary = Summary {
         run_id,
         actors: config.actors,
@@ -293,6 +278,28 @@ fn lost_in_fault(buffer: &BufferReport, role: &str, config: &RunConfig) -> Optio
         .iter()
         .find(|&(&next, _)| next > 0 && RoleId::Buffer(next - 1).name() == role)
         .map(|(_, &lost)| lost)
+}
+
+/// Steps that the actors this launch started, and stopped in order, sent and the buffer
+/// never received ([`BufferReport::unreceived`]). Not those of a launch before, which may
+/// have ended hung, its roles stopping by themselves in any order; none after a restart of
+/// the buffer, which counts its losses apart.
+fn unreceived_steps(supervisor: &Supervisor, buffer: &BufferReport, actors: &[ActorReport]) -> u64 {
+    if supervisor.buffer() != RoleId::Buffer(0) {
+        return 0;
+    }
+    let config = supervisor.config();
+    let stopped_here: Vec<ActorReport> = actors
+        .iter()
+        .filter(|r| {
+            supervisor.started_actor(ActorId {
+                index: config.process_of(r.actor),
+                incarnation: r.incarnation,
+            })
+        })
+        .cloned()
+        .collect();
+    buffer.unreceived(&stopped_here)
 }
 
 /// The reports of actors that stopped cleanly, in index and incarnation order.
