@@ -56,7 +56,8 @@ const PREFIX: &str = "pushgrasp";
 /// Longest run id accepted (iceoryx2 limits node names to 128 bytes).
 pub const MAX_RUN_ID: usize = 64;
 
-/// The slice a publisher reserves first; larger messages grow it in powers of two.
+/// The slice a publisher of messages other than steps reserves first; larger ones grow it in
+/// powers of two.
 const INITIAL_SLICE: usize = 4096;
 
 /// How long a cleanup waits for another process cleaning up the same dead node.
