@@ -747,6 +747,49 @@ fn rss_mb(pid: u32) -> Option<u64> {
     Some(kb / 1024)
 }
 
+/// The run stops while a host's link is cut: the stop waits for the host to come back, the
+/// order to stop reaches it then, and everything it sent arrives.
+#[test]
+fn a_host_cut_off_as_the_run_stops_comes_back_and_loses_nothing() {
+    let machines = Machines::new(1);
+    let Place::Namespace { outside, .. } = &machines.hosts[0] else {
+        eprintln!("skipping the cut at the stop: no network namespace to cut");
+        return;
+    };
+    let run = "cut-stop";
+    // Every episode comes from the joined host: the run ends by the interrupt, not its budget.
+    let central = machines.central_awaiting(run, 1);
+    let secret = machines.secret(run);
+    let joined = machines
+        .join_giving_up_after(0, run, "h0", &secret, 60)
+        .spawn()
+        .unwrap();
+    first_actor_pid(&machines, run, "h0");
+    std::thread::sleep(HEAD_START);
+    assert!(ip(&["link", "set", outside, "down"]));
+    std::thread::sleep(Duration::from_secs(1));
+    let interrupted = Command::new("kill")
+        .args(["-INT", &central.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(interrupted.success());
+    // Cut past both leases, as in the link-drop test: the central host loses the host's
+    // session while it waits for the host to finish.
+    std::thread::sleep(Duration::from_secs(11));
+    assert!(ip(&["link", "set", outside, "up"]));
+    let central = wait_output(central, Duration::from_secs(300), "the central run");
+    succeeded(&central, "the central run");
+    succeeded(
+        &wait_output(joined, Duration::from_secs(60), "the host"),
+        "the host",
+    );
+    let summary = json(&machines.run_dir(run).join("summary.json"));
+    assert_eq!(summary["interrupted"], true);
+    let counted = all_arrived(&summary, &machines.run_dir(run), "h0");
+    assert_eq!(u(&counted["lost_links"]), 1, "{counted}");
+    assert!(counted["done"] == true, "{counted}");
+}
+
 #[test]
 fn a_slow_link_holds_the_remote_actor_back_in_bounded_memory() {
     let machines = Machines::new(1);

@@ -4,6 +4,7 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
@@ -58,11 +59,21 @@ pub struct HostReport {
     /// back is taken once.
     #[serde(skip)]
     pub(crate) parcels_taken: u64,
+    /// When its session was last lost before it was done.
+    #[serde(skip)]
+    pub(crate) lost_at: Option<Instant>,
 }
 
 impl HostReport {
     pub(crate) fn owns(&self, actor: u32) -> bool {
         (self.first_actor..self.first_actor + self.actors).contains(&actor)
+    }
+
+    /// Whether the run's stop waits for it: it has not said it is done, and its session is
+    /// present or was lost less than `grace` ago (a dropped link comes back by itself, and
+    /// the order to stop reaches it then).
+    pub(crate) fn awaited(&self, grace: Duration) -> bool {
+        !self.done && (self.alive || self.lost_at.is_some_and(|at| at.elapsed() < grace))
     }
 
     /// Steps its actors reported sent that never arrived, from the streams seen in this
@@ -220,6 +231,32 @@ mod tests {
             JoinReply::Accepted(placement) => placement,
             JoinReply::Refused(why) => panic!("refused: {why}"),
         }
+    }
+
+    #[test]
+    fn the_stop_waits_for_a_host_not_done_while_it_is_here_or_just_lost() {
+        let grace = Duration::from_secs(30);
+        let here = HostReport {
+            alive: true,
+            ..HostReport::default()
+        };
+        assert!(here.awaited(grace));
+        let done = HostReport {
+            done: true,
+            ..here.clone()
+        };
+        assert!(!done.awaited(grace));
+        let just_lost = HostReport {
+            lost_at: Some(Instant::now()),
+            ..HostReport::default()
+        };
+        assert!(just_lost.awaited(grace));
+        let long_lost = HostReport {
+            lost_at: Instant::now().checked_sub(Duration::from_secs(31)),
+            ..HostReport::default()
+        };
+        assert!(long_lost.lost_at.is_some() && !long_lost.awaited(grace));
+        assert!(!HostReport::default().awaited(grace), "never here");
     }
 
     #[test]

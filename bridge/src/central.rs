@@ -21,9 +21,15 @@ use crate::admission::{Admission, HostNews, HostReport, Hosts};
 use crate::join::{self, JoinReply, JoinRequest};
 use crate::link::{self, Keys, Stream};
 use crate::parcel::{self, Parcel};
+use crate::session::CENTRAL_LEASE_MS;
 
 /// How long each thread waits for news before it looks at its stop flag.
 const POLL: Duration = Duration::from_millis(50);
+
+/// How long the run's stop waits for a host whose session was lost to come back: a host
+/// whose link dropped finds the central host gone within its lease, then reconnects as TCP
+/// and Zenoh back off (seconds more on a loaded machine).
+const RETURN_GRACE: Duration = Duration::from_millis(3 * CENTRAL_LEASE_MS);
 
 /// The central host's bridge, running until [`Central::close`].
 pub struct Central {
@@ -104,9 +110,10 @@ impl Central {
         self.threads.iter().any(JoinHandle::is_finished)
     }
 
-    /// Refuses further joins, then waits until every live host has said it is done (they
-    /// stop when the launcher's order to stop the actors reaches them) or `timeout` passes.
-    /// Returns the hosts that did not finish.
+    /// Refuses further joins, then waits until every live host, and every host lost less
+    /// than [`RETURN_GRACE`] ago, has said it is done (they stop when the launcher's order
+    /// to stop the actors reaches them) or `timeout` passes. Returns the hosts that did not
+    /// finish.
     pub fn wait_for_hosts(&self, timeout: Duration) -> Vec<String> {
         self.hosts().closing = true;
         let deadline = Instant::now() + timeout;
@@ -115,7 +122,7 @@ impl Central {
                 .hosts()
                 .hosts
                 .values()
-                .filter(|h| h.alive && !h.done)
+                .filter(|h| h.awaited(RETURN_GRACE))
                 .map(|h| h.host.clone())
                 .collect();
             if waiting.is_empty() || Instant::now() > deadline || self.failed() {
@@ -274,6 +281,7 @@ fn carry_up(shared: &Shared) -> Result<()> {
                 // Done: it said it had sent everything, and leaving is what it should do.
                 if !host.done {
                     host.lost_links += 1;
+                    host.lost_at = Some(Instant::now());
                     hosts.news.push(HostNews::Lost(name.to_owned()));
                 }
             }
