@@ -680,16 +680,18 @@ fn one_command_runs_a_run_across_the_nodes_of_a_slurm_job() {
     );
 }
 
-#[test]
-fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
+/// A run awaiting the one actor of joined host `h0`, whose link is cut for 12 s once its
+/// actor has acted a while, `while_cut` running meanwhile; the run and the host must
+/// succeed. The machines and the run's summary, or None where there is no network
+/// namespace to cut.
+fn with_the_link_cut(run: &str, while_cut: impl FnOnce(&Child)) -> Option<(Machines, Value)> {
     let machines = Machines::new(1);
     let Place::Namespace { outside, .. } = &machines.hosts[0] else {
-        eprintln!("skipping the link drop: no network namespace to cut");
-        return;
+        eprintln!("skipping the cut link of run {run}: no network namespace to cut");
+        return None;
     };
-    let run = "drop";
     // Every episode comes from the joined host, which holds its actor back once 8 parcels
-    // wait, so the run cannot end while its link is cut.
+    // wait, so the run cannot end by its budget while its link is cut.
     let central = machines.central_awaiting(run, 1);
     let secret = machines.secret(run);
     // The link comes back after 12 s, but Zenoh's reconnection backs off and TCP's SYN
@@ -703,7 +705,9 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
     // Longer than both sides' leases (5 s the central host waits, 10 s the host): each ends
     // the session, the central host first; the host reconnects.
     assert!(ip(&["link", "set", outside, "down"]));
-    std::thread::sleep(Duration::from_secs(12));
+    let cut = Instant::now();
+    while_cut(&central);
+    std::thread::sleep(Duration::from_secs(12).saturating_sub(cut.elapsed()));
     assert!(ip(&["link", "set", outside, "up"]));
     let central = wait_output(central, Duration::from_secs(300), "the central run");
     succeeded(&central, "the central run");
@@ -712,6 +716,15 @@ fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
         "the host",
     );
     let summary = json(&machines.run_dir(run).join("summary.json"));
+    Some((machines, summary))
+}
+
+#[test]
+fn a_host_whose_link_drops_reconnects_and_loses_nothing() {
+    let run = "drop";
+    let Some((machines, summary)) = with_the_link_cut(run, |_| ()) else {
+        return;
+    };
     // The link was lost and is a fault, the host came back by itself (one join), and
     // everything it sent arrived: it held its parcels while no one listened.
     let counted = all_arrived(&summary, &machines.run_dir(run), "h0");
@@ -751,39 +764,19 @@ fn rss_mb(pid: u32) -> Option<u64> {
 /// order to stop reaches it then, and everything it sent arrives.
 #[test]
 fn a_host_cut_off_as_the_run_stops_comes_back_and_loses_nothing() {
-    let machines = Machines::new(1);
-    let Place::Namespace { outside, .. } = &machines.hosts[0] else {
-        eprintln!("skipping the cut at the stop: no network namespace to cut");
+    let run = "cut-stop";
+    // Interrupted 1 s into the cut: the central host loses the host's session while it
+    // waits for the host to finish.
+    let Some((machines, summary)) = with_the_link_cut(run, |central| {
+        std::thread::sleep(Duration::from_secs(1));
+        let interrupted = Command::new("kill")
+            .args(["-INT", &central.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(interrupted.success());
+    }) else {
         return;
     };
-    let run = "cut-stop";
-    // Every episode comes from the joined host: the run ends by the interrupt, not its budget.
-    let central = machines.central_awaiting(run, 1);
-    let secret = machines.secret(run);
-    let joined = machines
-        .join_giving_up_after(0, run, "h0", &secret, 60)
-        .spawn()
-        .unwrap();
-    first_actor_pid(&machines, run, "h0");
-    std::thread::sleep(HEAD_START);
-    assert!(ip(&["link", "set", outside, "down"]));
-    std::thread::sleep(Duration::from_secs(1));
-    let interrupted = Command::new("kill")
-        .args(["-INT", &central.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(interrupted.success());
-    // Cut past both leases, as in the link-drop test: the central host loses the host's
-    // session while it waits for the host to finish.
-    std::thread::sleep(Duration::from_secs(11));
-    assert!(ip(&["link", "set", outside, "up"]));
-    let central = wait_output(central, Duration::from_secs(300), "the central run");
-    succeeded(&central, "the central run");
-    succeeded(
-        &wait_output(joined, Duration::from_secs(60), "the host"),
-        "the host",
-    );
-    let summary = json(&machines.run_dir(run).join("summary.json"));
     assert_eq!(summary["interrupted"], true);
     let counted = all_arrived(&summary, &machines.run_dir(run), "h0");
     assert_eq!(u(&counted["lost_links"]), 1, "{counted}");

@@ -5,9 +5,12 @@
 //! past them (`ExceedsMaxSupportedSubscribers`), and it reserves each publisher's memory for
 //! the worst case its limits allow: max subscribers times the messages each may hold
 //! (buffer and borrowed), plus history and the publisher's loans, each message the run's
-//! largest step or, on other topics, rounded up to a power of two. A reserved page takes memory only once written (the segments are
-//! sparse files in /dev/shm), so a run's footprint is two figures: what its files reserve,
-//! and what its messages can write at most.
+//! largest step or, on other topics, rounded up to a power of two. A reserved page takes
+//! memory only once written (the segments are sparse files in /dev/shm), so a run's
+//! footprint is two figures: what its files reserve, and what its messages can write at
+//! most.
+
+use iceoryx2::prelude::AllocationStrategy;
 
 use crate::topic::{Fan, Topic};
 
@@ -125,15 +128,28 @@ impl ShmLimits {
         footprint
     }
 
-    /// The memory a publisher of `topic` reserves for each message: a step exactly (its
-    /// memory is reserved up front), others in powers of two from the first slice.
-    fn slot(self, topic: Topic, largest: &LargestMessages) -> usize {
-        let grown = |bytes: usize| bytes.max(INITIAL_SLICE).next_power_of_two();
+    /// How a publisher of `topic` holds its messages, and the slice it reserves first:
+    /// steps in memory reserved for the run's largest up front, which stays readable once
+    /// the subscriber connected (see the transport's docs); other messages in memory that
+    /// grows with them in powers of two.
+    pub(super) fn memory(self, topic: Topic) -> (AllocationStrategy, usize) {
         match topic {
-            Topic::Steps => self.largest_step,
-            Topic::Batches => grown(largest.batch),
-            Topic::Weights => grown(largest.weights),
-            Topic::Requests | Topic::Control | Topic::Status => INITIAL_SLICE,
+            Topic::Steps => (AllocationStrategy::Static, self.largest_step),
+            _ => (AllocationStrategy::PowerOfTwo, INITIAL_SLICE),
+        }
+    }
+
+    /// The memory a publisher of `topic` reserves for each message sending its largest.
+    fn slot(self, topic: Topic, largest: &LargestMessages) -> usize {
+        let (allocation, first) = self.memory(topic);
+        let largest = match topic {
+            Topic::Batches => largest.batch,
+            Topic::Weights => largest.weights,
+            Topic::Steps | Topic::Requests | Topic::Control | Topic::Status => first,
+        };
+        match allocation {
+            AllocationStrategy::Static => first,
+            _ => largest.max(first).next_power_of_two(),
         }
     }
 }

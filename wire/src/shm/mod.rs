@@ -176,16 +176,6 @@ impl ShmTransport {
         Ok(report)
     }
 
-    /// How a publisher of `topic` holds its messages: steps in memory reserved for the run's
-    /// largest up front, which stays readable once the subscriber connected (see the
-    /// module's docs); other messages in memory that grows with them from a first slice.
-    fn memory(&self, topic: Topic) -> (AllocationStrategy, usize) {
-        match topic {
-            Topic::Steps => (AllocationStrategy::Static, self.limits.largest_step()),
-            _ => (AllocationStrategy::PowerOfTwo, INITIAL_SLICE),
-        }
-    }
-
     /// What a failed port creation was, with the limit that may have refused it.
     fn ports(&self, kind: &str, admitted: usize) -> String {
         format!(
@@ -309,7 +299,7 @@ impl Transport for ShmTransport {
             // Unused: the service overwrites the oldest message instead.
             Delivery::Latest => BackpressureStrategy::DiscardData,
         };
-        let (allocation, first_slice) = self.memory(topic);
+        let (allocation, first_slice) = self.limits.memory(topic);
         let publisher = service
             .publisher_builder()
             .backpressure_strategy(backpressure)
