@@ -142,6 +142,47 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
         (0.02, 1000.0)
     );
 
+    // The authors' protocol: their rule and Q*, random scenes by the Q* alone, and learning
+    // during the test. A stage-1 checkpoint trains its grasp net alone, so each grasp with a
+    // decision after it takes one update; the why-report covers every run.
+    let authors = eval("1", &["--learn", "--authors-rule", "--why"]);
+    assert_eq!(
+        (
+            authors["rule"].as_str(),
+            authors["random_scene_rule"].as_str(),
+            authors["q_star"].as_f64()
+        ),
+        (Some("threshold-or-crowded"), Some("threshold"), Some(1.5)),
+        "{authors}"
+    );
+    assert_eq!(authors["learning"]["trained"], serde_json::json!(["grasp"]));
+    for case in authors["cases"].as_array().unwrap() {
+        assert_eq!(case["why"]["runs"], 2, "{case}");
+        if case["complete_runs"].as_u64().unwrap() > 0 {
+            // Any object picked counts at least as often as the goal.
+            assert!(
+                case["any_object_grasp_success"].as_f64().unwrap()
+                    >= case["grasp_success"].as_f64().unwrap(),
+                "{case}"
+            );
+        }
+    }
+    for line in std::fs::read_to_string(&runs_json).unwrap().lines() {
+        let run: Value = serde_json::from_str(line).unwrap();
+        let actions = run["actions"].as_array().unwrap();
+        let labelled_grasps = actions[..actions.len() - 1]
+            .iter()
+            .filter(|a| a["primitive"] == "grasp")
+            .count();
+        assert_eq!(run["updates"], labelled_grasps, "{run}");
+        assert!(
+            actions
+                .iter()
+                .all(|a| a["goal_border_occupancy"].is_number())
+        );
+    }
+    assert!(first["learning"].is_null() && first["cases"][0]["why"].is_null());
+
     // The table says the same in words; goal-agnostic runs clear the table.
     let table = pushgrasp_ok(&[
         "eval",
@@ -158,6 +199,22 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             && table.contains("arrangements avg")
             && table.contains("goal-agnostic"),
         "{table}"
+    );
+    let why = pushgrasp_ok(&[
+        "eval",
+        "--checkpoint",
+        checkpoint,
+        "--arrangements",
+        "configs/arrangements/challenging-05.toml",
+        "--runs",
+        "1",
+        "--why",
+    ]);
+    assert!(
+        why.contains("any object picked")
+            && why.contains("why runs failed, arrangements: 1 runs")
+            && why.contains("picked the goal"),
+        "{why}"
     );
 
     // The same checkpoint's grasp net scored against every direct grasp of the goal, in a
@@ -244,6 +301,20 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     ]);
     assert!(
         err.contains("config.toml with --set") && err.contains("policy.grasp_margin"),
+        "{err}"
+    );
+    // A goal-agnostic test has no labels to learn from.
+    let err = pushgrasp_fails(&[
+        "eval",
+        "--checkpoint",
+        checkpoint,
+        "--random",
+        "6",
+        "--goal-agnostic",
+        "--learn",
+    ]);
+    assert!(
+        err.contains("--goal-agnostic") && err.contains("--learn"),
         "{err}"
     );
 }

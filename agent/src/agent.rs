@@ -75,7 +75,11 @@ impl Agent {
     /// Acts with the weights in `bytes` (made by [`QNets::to_bytes`] for nets of this
     /// agent's configuration) from now on.
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), QNetError> {
-        let nets = self.nets.clone().load_bytes(bytes)?;
+        self.act_with(self.nets.clone().load_bytes(bytes)?)
+    }
+
+    /// Acts with `nets` (in inference form, of this agent's configuration) from now on.
+    pub fn act_with(&mut self, nets: QNets) -> Result<(), QNetError> {
         self.acting = ActingNets::new(&nets)?;
         self.nets = nets;
         Ok(())

@@ -9,15 +9,23 @@
 //!
 //! Goal-agnostic runs ([`EvalConfig::goal_agnostic`]) give the agent every object as its goal
 //! ([`sim::ANY_OBJECT`]) and go on until the table is clear.
+//!
+//! The authors' test protocol is here too, as options: learning during the test
+//! ([`EvalConfig::learning`], [`crate::test_learning`]), and their rule, which tests the
+//! goal's border on designed cases only ([`EvalConfig::random_scene_rule`]).
 
+use learner::LearnerError;
+use policy::Rule;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use sim::measure::occupancy_ratio;
 use sim::{ANY_OBJECT, Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
 
 use crate::agent::{Agent, AgentError};
 use crate::metrics::{ActionRecord, CaseMetrics, RunRecord};
+use crate::test_learning::{RunLearner, TestLearning};
 
 /// How the test runs are made.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -37,6 +45,12 @@ pub struct EvalConfig {
     pub max_actions: usize,
     /// Clear the table instead of picking the case's goal: every object is the goal.
     pub goal_agnostic: bool,
+    /// Learn during each run, from the checkpoint's nets at its start (the authors' code);
+    /// `None`: the nets stay as they are (the paper's test).
+    pub learning: Option<TestLearning>,
+    /// The rule random scenes are tested under where it is not the agent's own: the
+    /// authors' test rule leaves its border test out there.
+    pub random_scene_rule: Option<Rule>,
 }
 
 impl Default for EvalConfig {
@@ -49,6 +63,8 @@ impl Default for EvalConfig {
             jitter_rad: 1f32.to_radians(),
             max_actions: 100,
             goal_agnostic: false,
+            learning: None,
+            random_scene_rule: None,
         }
     }
 }
@@ -81,6 +97,14 @@ pub enum EvalError {
     NoGoal { case: String },
     #[error("case {case}: the scene has no visible object to take as the goal")]
     EmptyScene { case: String },
+    #[error("case {case}: learning during the test: {source}")]
+    Learner {
+        case: String,
+        #[source]
+        source: LearnerError,
+    },
+    #[error("learning during the test needs a goal: a goal-agnostic test has no labels")]
+    LearningWithoutGoal,
 }
 
 /// A case's runs and figures.
@@ -98,6 +122,9 @@ pub fn evaluate(
     cases: &[(String, Scene)],
     config: &EvalConfig,
 ) -> Result<Vec<CaseReport>, EvalError> {
+    if config.goal_agnostic && config.learning.is_some() {
+        return Err(EvalError::LearningWithoutGoal);
+    }
     let jobs: Vec<(usize, usize)> = (0..cases.len())
         .flat_map(|c| (0..config.runs).map(move |r| (c, r)))
         .collect();
@@ -133,6 +160,7 @@ enum RunError {
     Agent(AgentError),
     NoGoal,
     EmptyScene,
+    Learner(LearnerError),
 }
 
 impl RunError {
@@ -143,12 +171,14 @@ impl RunError {
             RunError::Agent(source) => EvalError::Agent { case, source },
             RunError::NoGoal => EvalError::NoGoal { case },
             RunError::EmptyScene => EvalError::EmptyScene { case },
+            RunError::Learner(source) => EvalError::Learner { case, source },
         }
     }
 }
 
 /// One test run: the scene, then greedy actions until the run is decided, the goal has left
 /// the table (the table is clear, for a goal-agnostic run), or the action guard is reached.
+/// The agent is the run's own copy: a run that learns starts from the checkpoint's nets.
 fn test_run(
     agent: &Agent,
     scene: &Scene,
@@ -156,6 +186,14 @@ fn test_run(
     seed: u64,
 ) -> Result<RunRecord, RunError> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut agent = agent.clone();
+    if let (Scene::Random { .. }, Some(rule)) = (scene, config.random_scene_rule) {
+        agent.policy.rule = rule;
+    }
+    let mut learner = config
+        .learning
+        .as_ref()
+        .map(|learning| RunLearner::start(learning, agent.nets(), &agent.geometry));
     let (mut tabletop, goal) = build(scene, config, &mut rng)?;
     let camera = Camera::new(tabletop.grid());
     let on_table = |tabletop: &Tabletop| match goal {
@@ -168,6 +206,7 @@ fn test_run(
         actions: Vec::new(),
         objects_left: tabletop.objects().count(),
         goal_lost: false,
+        updates: 0,
     };
     let mut pushes = 0;
     while record.actions.len() < max_actions && !record.outcome().decided {
@@ -175,8 +214,19 @@ fn test_run(
         let choice = agent
             .decide(&obs, goal, pushes, 0.0, &mut rng)
             .map_err(RunError::Agent)?;
-        let action = choice.decision.action;
+        let decision = choice.decision;
+        if let Some(learner) = &mut learner
+            && let Some(nets) = learner.learn(&obs, &decision).map_err(RunError::Learner)?
+        {
+            agent
+                .act_with(nets)
+                .map_err(|e| RunError::Agent(e.into()))?;
+        }
+        let action = decision.action;
         let outcome = tabletop.act(&action, &obs).map_err(RunError::Sim)?;
+        if let Some(learner) = &mut learner {
+            learner.executed(&obs, goal, decision, outcome.grasped);
+        }
         pushes = match action.primitive {
             Primitive::Push => pushes + 1,
             Primitive::Grasp => 0,
@@ -184,12 +234,14 @@ fn test_run(
         record.actions.push(ActionRecord {
             primitive: action.primitive,
             grasped: outcome.grasped,
-            goal_grasp_q: choice.decision.goal_grasp_q,
+            goal_grasp_q: decision.goal_grasp_q,
+            goal_border_occupancy: Some(occupancy_ratio(&obs, goal)),
         });
         record.objects_left = tabletop.objects().count();
         record.goal_lost =
             goal != ANY_OBJECT && outcome.grasped != Some(goal) && tabletop.object(goal).is_none();
     }
+    record.updates = learner.as_ref().map_or(0, RunLearner::updates);
     Ok(record)
 }
 

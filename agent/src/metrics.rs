@@ -8,6 +8,10 @@
 //! Goal-agnostic runs (goal [`ANY_OBJECT`]) clear the table instead: every object picked is a
 //! success, a run is complete when no object is left without 10 failed attempts in a row,
 //! and grasp success is objects picked over grasp attempts.
+//!
+//! The authors' metric is given beside ours ([`CaseMetrics::any_object_grasp_success`]): their
+//! `evaluate.py` counts a grasp as a success when it picked any object (their grasp reward
+//! is "the gripper did not close fully"), over the same complete runs.
 
 use serde::{Deserialize, Serialize};
 use sim::{ANY_OBJECT, ObjectId, Primitive};
@@ -25,6 +29,10 @@ pub struct ActionRecord {
     /// The goal's best grasp Q when the action was chosen (the policy's discriminator
     /// score), to compare the nets' confidence with what then happened.
     pub goal_grasp_q: f32,
+    /// The occupied share of the ring around the goal when the action was chosen
+    /// (`sim::measure::occupancy_ratio`); absent from records written before it was kept.
+    #[serde(default)]
+    pub goal_border_occupancy: Option<f32>,
 }
 
 /// What happened in one test run.
@@ -39,6 +47,9 @@ pub struct RunRecord {
     /// the table): the run has failed, however many actions remain.
     #[serde(default)]
     pub goal_lost: bool,
+    /// Updates the nets took during the run (learning during the test; 0 without).
+    #[serde(default)]
+    pub updates: usize,
 }
 
 /// A run judged by the paper's rules.
@@ -52,6 +63,8 @@ pub struct RunOutcome {
     pub grasp_attempts: usize,
     /// Grasps that picked the goal (any object in a goal-agnostic run).
     pub grasp_successes: usize,
+    /// Grasps that picked any object (the authors' success).
+    pub objects_picked: usize,
 }
 
 impl RunRecord {
@@ -60,36 +73,44 @@ impl RunRecord {
     pub fn outcome(&self) -> RunOutcome {
         let clearing = self.goal == ANY_OBJECT;
         let mut failures_in_a_row = 0;
-        let mut grasp_attempts = 0;
-        let mut grasp_successes = 0;
-        let judged =
-            |complete: bool, actions: usize, attempts: usize, successes: usize| RunOutcome {
-                complete,
-                decided: true,
-                actions,
-                grasp_attempts: attempts,
-                grasp_successes: successes,
-            };
+        let mut judged = RunOutcome {
+            complete: false,
+            decided: false,
+            actions: 0,
+            grasp_attempts: 0,
+            grasp_successes: 0,
+            objects_picked: 0,
+        };
         for (i, action) in self.actions.iter().enumerate() {
             if action.primitive != Primitive::Grasp {
                 continue;
             }
-            grasp_attempts += 1;
+            judged.grasp_attempts += 1;
+            judged.objects_picked += usize::from(action.grasped.is_some());
             let success = match action.grasped {
                 Some(_) if clearing => true,
                 grasped => grasped == Some(self.goal),
             };
             if success {
-                grasp_successes += 1;
+                judged.grasp_successes += 1;
                 failures_in_a_row = 0;
                 if !clearing {
-                    return judged(true, i + 1, grasp_attempts, grasp_successes);
+                    return RunOutcome {
+                        complete: true,
+                        decided: true,
+                        actions: i + 1,
+                        ..judged
+                    };
                 }
                 continue;
             }
             failures_in_a_row += 1;
             if failures_in_a_row == MAX_FAILED_GRASPS {
-                return judged(false, i + 1, grasp_attempts, grasp_successes);
+                return RunOutcome {
+                    decided: true,
+                    actions: i + 1,
+                    ..judged
+                };
             }
         }
         let cleared = clearing && self.objects_left == 0;
@@ -97,8 +118,7 @@ impl RunRecord {
             complete: cleared,
             decided: cleared || self.goal_lost,
             actions: self.actions.len(),
-            grasp_attempts,
-            grasp_successes,
+            ..judged
         }
     }
 }
@@ -117,6 +137,10 @@ pub struct CaseMetrics {
     #[serde(default)]
     pub grasp_success_se: Option<f64>,
     pub motion_number: Option<f64>,
+    /// The authors' grasp success: grasps that picked any object over grasp attempts,
+    /// averaged over the same complete runs.
+    #[serde(default)]
+    pub any_object_grasp_success: Option<f64>,
 }
 
 impl CaseMetrics {
@@ -126,10 +150,14 @@ impl CaseMetrics {
             (!complete.is_empty())
                 .then(|| complete.iter().map(|o| f(o)).sum::<f64>() / complete.len() as f64)
         };
-        let successes: Vec<f64> = complete
-            .iter()
-            .map(|o| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64)
-            .collect();
+        let per_attempt = |count: fn(&RunOutcome) -> usize| -> Vec<f64> {
+            complete
+                .iter()
+                .map(|o| count(o) as f64 / o.grasp_attempts.max(1) as f64)
+                .collect()
+        };
+        let successes = per_attempt(|o| o.grasp_successes);
+        let any_object = per_attempt(|o| o.objects_picked);
         let spread = mean_and_spread(&successes);
         let grasp_success_se = spread
             .filter(|_| successes.len() >= 2)
@@ -141,6 +169,7 @@ impl CaseMetrics {
             grasp_success: spread.map(|(mean, _)| mean),
             grasp_success_se,
             motion_number: mean(&|o| o.actions as f64),
+            any_object_grasp_success: mean_and_spread(&any_object).map(|(mean, _)| mean),
         }
     }
 
@@ -167,6 +196,12 @@ impl CaseMetrics {
             grasp_success: mean(succeeding.iter().filter_map(|c| c.grasp_success).collect()),
             grasp_success_se,
             motion_number: mean(cases.iter().filter_map(|c| c.motion_number).collect()),
+            any_object_grasp_success: mean(
+                succeeding
+                    .iter()
+                    .filter_map(|c| c.any_object_grasp_success)
+                    .collect(),
+            ),
         }
     }
 }

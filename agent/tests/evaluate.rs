@@ -3,8 +3,9 @@
 
 use std::path::Path;
 
-use agent::{Agent, EvalConfig, Scene, evaluate};
-use policy::{Mode, PolicyConfig};
+use agent::{Agent, EvalConfig, Scene, TestLearning, evaluate};
+use learner::{LearningConfig, TrainedNet};
+use policy::{Mode, PolicyConfig, PushReward};
 use qnet::{Device, QNetConfig};
 use sim::{ANY_OBJECT, Arrangement, SimConfig};
 
@@ -19,45 +20,55 @@ fn cases() -> Vec<(String, Scene)> {
     ]
 }
 
-#[test]
-fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
-    let sim = SimConfig::with_pixel_size(0.004);
-    let side = sim.grid().unwrap().side();
-    let net = QNetConfig {
+fn small_net() -> QNetConfig {
+    QNetConfig {
         trunk_widths: vec![4, 8],
         head_width: 16,
         ..QNetConfig::default()
-    };
-    let make = || {
+    }
+}
+
+/// Untrained nets on the same weights in every worker (the weights seeded once).
+fn same_agent() -> impl Fn() -> Agent + Sync {
+    let side = SimConfig::with_pixel_size(0.004).grid().unwrap().side();
+    let make = move || {
         Agent::new(
-            &net,
+            &small_net(),
             side,
             PolicyConfig::default(),
             Mode::PushGrasp,
             &Device::flex(),
         )
     };
-    // Untrained nets on the same weights in every worker: seed the weights once.
     let weights = make().nets().to_bytes().unwrap();
-    let make_same = || {
+    move || {
         let mut agent = make();
         agent.load_weights(&weights).unwrap();
         agent
-    };
-    let config = EvalConfig {
-        sim,
+    }
+}
+
+fn small_eval() -> EvalConfig {
+    EvalConfig {
+        sim: SimConfig::with_pixel_size(0.004),
         runs: 2,
         seed: 3,
         max_actions: 8,
         ..EvalConfig::default()
-    };
+    }
+}
+
+#[test]
+fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
+    let make_same = same_agent();
+    let config = small_eval();
     let cases = cases();
-    let parallel = evaluate(make_same, &cases, &config).unwrap();
+    let parallel = evaluate(&make_same, &cases, &config).unwrap();
     let serial = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .unwrap()
-        .install(|| evaluate(make_same, &cases, &config).unwrap());
+        .install(|| evaluate(&make_same, &cases, &config).unwrap());
     for (a, b) in parallel.iter().zip(&serial) {
         assert_eq!(a.runs, b.runs, "{}", a.name);
         assert_eq!(a.metrics, b.metrics);
@@ -91,7 +102,7 @@ fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
         goal_agnostic: true,
         ..config.clone()
     };
-    let cleared = evaluate(make_same, &cases, &agnostic).unwrap();
+    let cleared = evaluate(&make_same, &cases, &agnostic).unwrap();
     for run in cleared.iter().flat_map(|case| &case.runs) {
         assert_eq!(run.goal, ANY_OBJECT);
         let outcome = run.outcome();
@@ -101,6 +112,56 @@ fn evaluation_is_deterministic_for_a_seed_and_judges_every_run() {
         assert!(outcome.decided || run.objects_left > 0, "{run:?}");
     }
     // Another seed gives other scenes (the random case differs).
-    let other = evaluate(make_same, &cases[1..], &EvalConfig { seed: 4, ..config }).unwrap();
+    let other = evaluate(&make_same, &cases[1..], &EvalConfig { seed: 4, ..config }).unwrap();
     assert_ne!(other[0].runs, parallel[1].runs);
+}
+
+#[test]
+fn a_run_that_learns_updates_after_every_labelled_action_from_the_checkpoints_nets() {
+    let make_same = same_agent();
+    let cases = &cases()[..1];
+    let frozen_config = EvalConfig {
+        runs: 3,
+        ..small_eval()
+    };
+    let learning = EvalConfig {
+        learning: Some(TestLearning {
+            net: small_net(),
+            learning: LearningConfig::default(),
+            trained: vec![TrainedNet::Grasp, TrainedNet::Push],
+            push_reward: PushReward::Dense,
+        }),
+        ..frozen_config.clone()
+    };
+    // One worker: each run follows the one before on the same agent, so a run that did not
+    // start from the checkpoint's nets would show it.
+    let serial = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let (frozen, learned) = serial.install(|| {
+        (
+            evaluate(&make_same, cases, &frozen_config).unwrap(),
+            evaluate(&make_same, cases, &learning).unwrap(),
+        )
+    });
+    let mut changed = false;
+    for (frozen, learned) in frozen[0].runs.iter().zip(&learned[0].runs) {
+        assert_eq!(frozen.updates, 0);
+        // Every action but the last is labelled by the decision after it.
+        assert_eq!(learned.updates, learned.actions.len() - 1, "{learned:?}");
+        // The first two decisions are the checkpoint's nets': an update acts one decision
+        // after the action it learned from.
+        let first = frozen.actions.len().min(learned.actions.len()).min(2);
+        assert_eq!(frozen.actions[..first], learned.actions[..first]);
+        changed |= frozen.actions != learned.actions;
+    }
+    assert!(changed, "learning changed no run: {learned:?}");
+
+    // A goal-agnostic test has no goal to label: refused.
+    let agnostic = EvalConfig {
+        goal_agnostic: true,
+        ..learning
+    };
+    assert!(evaluate(&make_same, cases, &agnostic).is_err());
 }

@@ -11,6 +11,7 @@ fn push() -> ActionRecord {
         primitive: Primitive::Push,
         grasped: None,
         goal_grasp_q: 0.0,
+        goal_border_occupancy: None,
     }
 }
 
@@ -19,6 +20,7 @@ fn grasp(grasped: Option<u8>) -> ActionRecord {
         primitive: Primitive::Grasp,
         grasped,
         goal_grasp_q: 0.0,
+        goal_border_occupancy: None,
     }
 }
 
@@ -28,6 +30,7 @@ fn run(actions: Vec<ActionRecord>) -> RunRecord {
         actions,
         objects_left: 3,
         goal_lost: false,
+        updates: 0,
     }
 }
 
@@ -38,6 +41,7 @@ fn clearing(actions: Vec<ActionRecord>, objects_left: usize) -> RunRecord {
         actions,
         objects_left,
         goal_lost: false,
+        updates: 0,
     }
 }
 
@@ -64,6 +68,7 @@ fn another_object_grasped_is_a_failed_attempt_not_a_success() {
     let outcome = run(vec![grasp(Some(2)), push(), grasp(None), grasp(Some(GOAL))]).outcome();
     assert!(outcome.complete);
     assert_eq!((outcome.actions, outcome.grasp_attempts), (4, 3));
+    assert_eq!((outcome.grasp_successes, outcome.objects_picked), (1, 2));
     let only_others = run(vec![grasp(Some(1)), grasp(Some(2)), grasp(Some(3))]).outcome();
     assert!(!only_others.complete && !only_others.decided);
 }
@@ -110,6 +115,9 @@ fn case_figures_average_over_complete_runs_only() {
     assert!((case.grasp_success_se.unwrap() - se).abs() < 1e-12);
     assert!((case.motion_number.unwrap() - 3.0).abs() < 1e-12);
 
+    // The authors' metric counts the grasp of object 3 too: 1, 1/2, 1.
+    assert!((case.any_object_grasp_success.unwrap() - 2.5 / 3.0).abs() < 1e-12);
+
     let none_complete = CaseMetrics::of(&outcomes[2..3]);
     assert_eq!(none_complete.completion, 0.0);
     assert_eq!(none_complete.grasp_success, None);
@@ -118,6 +126,8 @@ fn case_figures_average_over_complete_runs_only() {
     assert!((mean.completion - 0.375).abs() < 1e-12);
     assert_eq!(mean.grasp_success, case.grasp_success);
     assert_eq!(mean.grasp_success_se, case.grasp_success_se);
+    assert_eq!(none_complete.any_object_grasp_success, None);
+    assert_eq!(mean.any_object_grasp_success, case.any_object_grasp_success);
     assert_eq!(mean.runs, 5);
     // Two cases with errors: the mean's error is the root of the squares' sum over 2.
     let two = CaseMetrics::average(&[case, case]);

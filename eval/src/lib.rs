@@ -3,15 +3,23 @@
 //! and motion number, per case and averaged over the arrangements (the paper's "challenging"
 //! column; random scenes are their own column), as a table like the paper's or as JSON.
 //! `--goal-agnostic` clears the table instead (the paper's goal-agnostic test).
+//!
+//! The authors' test protocol, where it is not the paper's, is two options: `--learn` (one
+//! update per executed action, the nets restored at each run's start) and `--authors-rule`
+//! (Q* 1.5, and on designed cases a push while the goal's border is crowded). Their metric
+//! (any object picked counts) is always printed beside ours. `--why` says how the runs
+//! failed ([`agent::failures`]).
 
 use std::path::{Path, PathBuf};
 
 use agent::evaluate::CaseReport;
-use agent::{Agent, CaseMetrics, EvalConfig, RunOutcome, RunRecord, Scene};
+use agent::failures::{FailureReport, QBin};
+use agent::{Agent, CaseMetrics, EvalConfig, RunOutcome, RunRecord, Scene, TestLearning};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use learner::checkpoint::config_hash;
 use learner::{Checkpoint, SavedNets};
+use policy::Rule;
 use serde::Serialize;
 use sim::Arrangement;
 
@@ -64,6 +72,20 @@ pub struct EvalArgs {
     /// table; grasp success counts every object picked.
     #[arg(long)]
     goal_agnostic: bool,
+    /// Learn during the test, as the authors' code does: each executed action's label (the
+    /// checkpoint's stage's training label) and one update of its net, from a fresh Adam at
+    /// the stage's learning rate; the checkpoint's nets are restored at each run's start.
+    #[arg(long, conflicts_with_all = ["goal_agnostic", "ensemble"])]
+    learn: bool,
+    /// The authors' test-time rule instead of the config's: Q* 1.5, and on the designed
+    /// arrangements also a push while the goal's border ring is more than 0.3 occupied
+    /// (`policy.crowded_border`); random scenes by the Q* alone.
+    #[arg(long, conflicts_with = "grasp_only")]
+    authors_rule: bool,
+    /// Also say why runs failed: how incomplete runs ended, what the grasps picked, what the
+    /// pushes did for the goal, and how often grasps at each goal grasp Q picked the goal.
+    #[arg(long)]
+    why: bool,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     json: bool,
@@ -78,7 +100,13 @@ struct CaseRow {
     case: String,
     #[serde(flatten)]
     metrics: CaseMetrics,
+    /// With `--why`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    why: Option<FailureReport>,
 }
+
+/// The authors' test-time Q* (`main.py`: push below a goal grasp Q of 1.5).
+const AUTHORS_Q_STAR: f32 = 1.5;
 
 /// One line of `--runs-json`.
 #[derive(Serialize)]
@@ -104,9 +132,16 @@ struct EvalReport {
     /// `[policy] grasp_margin`, metres.
     grasp_margin: f32,
     goal_agnostic: bool,
+    /// Whether the nets learned during the test (`--learn`), and from what.
+    learning: Option<TestLearning>,
+    /// The rule random scenes were tested under, where not `rule`.
+    random_scene_rule: Option<Rule>,
     cases: Vec<CaseRow>,
     /// The mean over the designed arrangements (random scenes left out); absent without any.
     average: Option<CaseMetrics>,
+    /// With `--why`: the designed arrangements' runs together.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    arrangements_why: Option<FailureReport>,
 }
 
 pub fn run(args: &EvalArgs) -> Result<()> {
@@ -119,6 +154,17 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let mut set = on_backend.clone();
     for setting in &args.set {
         merge(&mut set, setting);
+    }
+    if args.authors_rule {
+        for setting in [
+            format!("policy.q_star={AUTHORS_Q_STAR}"),
+            "policy.rule=\"threshold-or-crowded\"".into(),
+        ] {
+            merge(
+                &mut set,
+                &parse_setting(&setting).map_err(anyhow::Error::msg)?,
+            );
+        }
     }
     let (config, mut agent, updates) =
         load_agent(&args.checkpoint, args.config.as_deref(), &set, mode)?;
@@ -153,27 +199,43 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     if cases.is_empty() {
         bail!("nothing to test: give --arrangements and/or --random");
     }
+    let learning = args.learn.then(|| TestLearning {
+        net: config.net.clone(),
+        learning: config.learning.clone(),
+        trained: config.trained_nets().to_vec(),
+        push_reward: config.push_reward,
+    });
     let eval = EvalConfig {
         sim: config.sim.clone(),
         runs: args.runs,
         seed: args.seed,
         goal_agnostic: args.goal_agnostic,
+        learning,
+        random_scene_rule: args.authors_rule.then_some(Rule::Threshold),
         ..EvalConfig::default()
     };
     let reports = agent::evaluate(|| agent.clone(), &cases, &eval)?;
     if let Some(path) = &args.runs_json {
         write_runs(path, &reports)?;
     }
-    let arranged: Vec<CaseMetrics> = reports
+    let is_arranged: Vec<bool> = cases
         .iter()
-        .zip(&cases)
-        .filter(|(_, (_, scene))| matches!(scene, Scene::Arrangement(_)))
-        .map(|(r, _)| r.metrics)
+        .map(|(_, scene)| matches!(scene, Scene::Arrangement(_)))
         .collect();
-    let average = (!arranged.is_empty()).then(|| CaseMetrics::average(&arranged));
+    let arranged: Vec<&CaseReport> = reports
+        .iter()
+        .zip(&is_arranged)
+        .filter_map(|(r, &arranged)| arranged.then_some(r))
+        .collect();
+    let average = (!arranged.is_empty())
+        .then(|| CaseMetrics::average(&arranged.iter().map(|r| r.metrics).collect::<Vec<_>>()));
+    let why = args.why && !args.goal_agnostic;
+    let arrangements_why = (why && !arranged.is_empty())
+        .then(|| FailureReport::of(arranged.iter().flat_map(|r| &r.runs)));
     let rows: Vec<CaseRow> = reports
         .into_iter()
         .map(|r| CaseRow {
+            why: why.then(|| FailureReport::of(&r.runs)),
             case: r.name,
             metrics: r.metrics,
         })
@@ -193,13 +255,17 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         q_star: agent.policy.q_star,
         grasp_margin: agent.policy.grasp_margin,
         goal_agnostic: args.goal_agnostic,
+        learning: eval.learning,
+        random_scene_rule: eval.random_scene_rule,
         cases: rows,
         average,
+        arrangements_why,
     };
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         print_table(&report);
+        print_why(&report);
     }
     Ok(())
 }
@@ -230,9 +296,20 @@ fn print_table(report: &EvalReport) {
             ""
         }
     );
+    if let Some(rule) = report.random_scene_rule
+        && report.cases.iter().any(|c| c.case.starts_with("random-"))
+    {
+        println!("random scenes under the {rule:?} rule");
+    }
+    if let Some(learning) = &report.learning {
+        println!(
+            "learning during the test: {:?} nets, learning rate {}, a fresh Adam each run",
+            learning.trained, learning.learning.learning_rate
+        );
+    }
     println!(
-        "{:18} {:>11} {:>20} {:>14}",
-        "case", "completion", "grasp success (se)", "motion number"
+        "{:18} {:>11} {:>20} {:>14} {:>16}",
+        "case", "completion", "grasp success (se)", "motion number", "any object picked"
     );
     let percent = |x: Option<f64>| x.map_or("-".into(), |x| format!("{:.1}%", 100.0 * x));
     let row = |name: &str, m: &CaseMetrics| {
@@ -240,10 +317,11 @@ fn print_table(report: &EvalReport) {
             .grasp_success_se
             .map_or(String::new(), |se| format!(" ({:.1})", 100.0 * se));
         println!(
-            "{name:18} {:>11} {:>20} {:>14}",
+            "{name:18} {:>11} {:>20} {:>14} {:>16}",
             percent(Some(m.completion)),
             percent(m.grasp_success) + &se,
-            m.motion_number.map_or("-".into(), |x| format!("{x:.2}"))
+            m.motion_number.map_or("-".into(), |x| format!("{x:.2}")),
+            percent(m.any_object_grasp_success)
         );
     };
     for case in &report.cases {
@@ -252,6 +330,74 @@ fn print_table(report: &EvalReport) {
     if let Some(average) = &report.average {
         row("arrangements avg", average);
     }
+}
+
+/// `--why`'s reports: the arrangements' runs together, then each random case's.
+fn print_why(report: &EvalReport) {
+    let random = report
+        .cases
+        .iter()
+        .filter(|c| c.case.starts_with("random-"));
+    let groups = report
+        .arrangements_why
+        .as_ref()
+        .map(|why| ("arrangements", why))
+        .into_iter()
+        .chain(random.filter_map(|c| c.why.as_ref().map(|why| (c.case.as_str(), why))));
+    for (name, why) in groups {
+        println!();
+        print_failures(name, why);
+    }
+}
+
+fn print_failures(name: &str, why: &FailureReport) {
+    let share = |n: usize, of: usize| format!("{n} ({:.1}%)", 100.0 * n as f64 / of.max(1) as f64);
+    println!(
+        "why runs failed, {name}: {} runs, {} complete; incomplete: {} out of attempts, {} goal off the table, {} undecided",
+        why.runs, why.complete, why.out_of_attempts, why.goal_lost, why.undecided
+    );
+    let g = &why.grasps;
+    println!(
+        "  grasps {}: the goal {}, nothing {}, another object {}; the goal knocked off {}, repeats of the failed grasp before {}",
+        g.attempts,
+        share(g.goal, g.attempts),
+        share(g.nothing, g.attempts),
+        share(g.other_object, g.attempts),
+        g.goal_knocked_off,
+        share(g.repeats, g.attempts - g.goal),
+    );
+    let p = &why.pushes;
+    let judged = p.pushes - p.unjudged;
+    println!(
+        "  pushes {}: raised the goal's grasp Q {}, freed its border {}, both {}, neither {}; not judged {}",
+        p.pushes,
+        share(p.raised_q, judged),
+        share(p.freed_border, judged),
+        share(p.both, judged),
+        share(p.neither, judged),
+        p.unjudged
+    );
+    let label = |bin: &QBin| match (bin.from, bin.to) {
+        (None, Some(to)) => format!("<{to}"),
+        (Some(from), None) => format!(">={from}"),
+        (Some(from), Some(to)) => format!("{from}-{to}"),
+        (None, None) => "all".into(),
+    };
+    let cells = |f: &dyn Fn(&QBin) -> String| {
+        why.reliability
+            .iter()
+            .map(|b| format!("{:>9}", f(b)))
+            .collect::<String>()
+    };
+    println!("  {:16}{}", "goal grasp Q", cells(&label));
+    println!("  {:16}{}", "grasps", cells(&|b| b.grasps.to_string()));
+    println!(
+        "  {:16}{}",
+        "picked the goal",
+        cells(&|b| b
+            .rate()
+            .map_or("-".into(), |r| format!("{:.0}%", 100.0 * r)))
+    );
 }
 
 fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {

@@ -1,12 +1,14 @@
 //! The hierarchical push-grasp policy: the grasp net is the discriminator (grasp once the
 //! goal's grasp Q exceeds Q*), the push net acts below it (at most five pushes, then a
 //! grasp), and epsilon-greedy exploration draws the chosen primitive's pixel and rotation.
-//! The goal-conditioned VPG baseline swaps the discriminator for VPG's rule ([`Rule`]).
+//! The goal-conditioned VPG baseline swaps the discriminator for VPG's rule, and the
+//! authors' test-time rule adds a crowded-border test to it ([`Rule`]).
 
 use std::ops::Bound;
 
 use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
+use sim::measure::occupancy_ratio;
 use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::error::PolicyError;
@@ -39,6 +41,9 @@ pub struct PolicyConfig {
     pub epsilon_decay: f64,
     /// How push or grasp is chosen in push-grasp mode.
     pub rule: Rule,
+    /// Under [`Rule::ThresholdOrCrowded`]: push while more than this share of the ring
+    /// around the goal is occupied ([`occupancy_ratio`]; the authors' test: 0.3).
+    pub crowded_border: f32,
 }
 
 /// How the policy chooses between pushing and grasping.
@@ -51,6 +56,10 @@ pub enum Rule {
     /// Goal-conditioned VPG's: the primitive whose best Q is higher (the grasp's inside the
     /// goal mask, the push's over its valid starts, since no push starts on an object).
     HigherQ,
+    /// The authors' code at test time on its designed cases (`main.py`, not the paper): push
+    /// while the goal's border ring is more than `crowded_border` occupied or its grasp Q is
+    /// at most Q* (there 1.5), else grasp.
+    ThresholdOrCrowded,
 }
 
 impl Default for PolicyConfig {
@@ -63,6 +72,7 @@ impl Default for PolicyConfig {
             epsilon_end: 0.1,
             epsilon_decay: 0.9998,
             rule: Rule::Threshold,
+            crowded_border: 0.3,
         }
     }
 }
@@ -72,6 +82,7 @@ impl PolicyConfig {
     pub fn validate(&self) -> Result<(), ConfigError> {
         ConfigError::check_range("q_star", self.q_star, ..)?;
         ConfigError::check_range("grasp_margin", self.grasp_margin, 0.0..)?;
+        ConfigError::check_range("crowded_border", self.crowded_border, 0.0..=1.0)?;
         ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
         ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
         ConfigError::check_range(
@@ -114,6 +125,9 @@ pub enum Reason {
     NoPushMaps,
     /// Push: the goal's grasp Q is at most Q*.
     BelowThreshold,
+    /// Push ([`Rule::ThresholdOrCrowded`]): the goal's grasp Q exceeds Q*, but its border
+    /// ring is more occupied than `crowded_border`.
+    BorderCrowded,
     /// Grasp (VPG's rule): the goal's grasp Q is at least the best push Q.
     GraspQHigher,
     /// Push (VPG's rule): the best push Q is higher than the goal's grasp Q.
@@ -288,18 +302,30 @@ pub fn choose(
         None => None,
     };
     let best_push_q = best_push.as_ref().map(|(_, _, best)| best.0);
+    let above = goal_grasp_q > config.q_star;
+    // The ring is measured only where the rule reads it.
+    let crowded = config.rule == Rule::ThresholdOrCrowded
+        && mode == Mode::PushGrasp
+        && above
+        && occupancy_ratio(obs, input.goal) > config.crowded_border;
     let reason = match (best_push_q, config.rule) {
         _ if mode == Mode::GraspOnly => Reason::GraspOnlyMode,
-        (_, Rule::Threshold) if goal_grasp_q > config.q_star => Reason::AboveThreshold,
+        (_, Rule::Threshold | Rule::ThresholdOrCrowded) if above && !crowded => {
+            Reason::AboveThreshold
+        }
         _ if input.pushes_so_far >= config.max_pushes => Reason::PushBudgetSpent,
         (None, _) => Reason::NoPushMaps,
-        (Some(_), Rule::Threshold) => Reason::BelowThreshold,
+        (Some(_), Rule::ThresholdOrCrowded) if crowded => Reason::BorderCrowded,
+        (Some(_), Rule::Threshold | Rule::ThresholdOrCrowded) => Reason::BelowThreshold,
         (Some(push_q), Rule::HigherQ) if push_q > goal_grasp_q => Reason::PushQHigher,
         (Some(_), Rule::HigherQ) => Reason::GraspQHigher,
     };
     let (primitive, maps, allowed, best) = match best_push {
         Some((push, starts, best))
-            if matches!(reason, Reason::BelowThreshold | Reason::PushQHigher) =>
+            if matches!(
+                reason,
+                Reason::BelowThreshold | Reason::BorderCrowded | Reason::PushQHigher
+            ) =>
         {
             (Primitive::Push, push, starts, best)
         }

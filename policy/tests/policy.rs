@@ -185,6 +185,65 @@ fn vpgs_rule_takes_the_primitive_with_the_higher_q_whatever_q_star() {
 }
 
 #[test]
+fn the_authors_test_rule_pushes_a_goal_with_a_crowded_border_whatever_its_q() {
+    let authors = PolicyConfig {
+        rule: Rule::ThresholdOrCrowded,
+        q_star: 1.5,
+        ..PolicyConfig::default()
+    };
+    // The fixture's neighbours stand 10 cm off: the goal's 2 cm ring is free, so the rule is
+    // the threshold alone, at its own Q*.
+    let f = Fixture::new();
+    for (q, primitive, reason) in [
+        (1.6, Primitive::Grasp, Reason::AboveThreshold),
+        (1.5, Primitive::Push, Reason::BelowThreshold),
+    ] {
+        let grasp = f.grasp(q);
+        let d = greedy_with(
+            &authors,
+            Mode::PushGrasp,
+            &input(&f.obs, &grasp, Some(&f.push), 0),
+        );
+        assert_eq!((d.action.primitive, d.reason), (primitive, reason), "q {q}");
+    }
+
+    // A cube against two sides of the goal fills more than 0.3 of its ring: a push, even at
+    // a grasp Q that passes every threshold, until the push budget is spent.
+    let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(PIXEL_SIZE)).unwrap();
+    cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
+    cube(&mut tabletop, 2, 0.055, 0.0, 0.025);
+    cube(&mut tabletop, 3, 0.0, 0.055, 0.025);
+    cube(&mut tabletop, 4, -0.055, 0.0, 0.025);
+    let crowded = Camera::new(tabletop.grid()).render(&tabletop);
+    assert!(sim::measure::occupancy_ratio(&crowded, GOAL) > 0.3);
+    let goal_pixel = pixel(&crowded, 0.0, 0.0);
+    let grasp = maps(&crowded, 0.0, &[(3, goal_pixel, 1.9)]);
+    let push = maps(&crowded, 0.0, &[(7, pixel(&crowded, 0.0, -0.1), 1.0)]);
+    let decide = |config: &PolicyConfig, pushes: usize| {
+        greedy_with(
+            config,
+            Mode::PushGrasp,
+            &input(&crowded, &grasp, Some(&push), pushes),
+        )
+    };
+    let d = decide(&authors, 0);
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Push, Reason::BorderCrowded)
+    );
+    let d = decide(&authors, 5);
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Grasp, Reason::PushBudgetSpent)
+    );
+    // The paper's rule grasps there; grasp-only mode never measures the ring.
+    let d = decide(&PolicyConfig::default(), 0);
+    assert_eq!(d.reason, Reason::AboveThreshold);
+    let d = greedy_with(&authors, Mode::GraspOnly, &input(&crowded, &grasp, None, 0));
+    assert_eq!(d.reason, Reason::GraspOnlyMode);
+}
+
+#[test]
 fn a_spent_push_budget_forces_a_grasp() {
     let f = Fixture::new();
     let grasp = f.grasp(1.0);
