@@ -138,6 +138,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("sim.drop_square", "1.0"),
         ("policy.q_star", "nan"),
         ("policy.grasp_margin", "-0.004"),
+        ("policy.crowded_border", "1.2"),
         ("policy.epsilon_start", "3.0"),
         ("policy.epsilon_decay", "1.5"),
         ("net.trunk_widths", "[]"),
