@@ -1,6 +1,6 @@
-//! Test runs: on each case, `runs` runs of the greedy policy (no exploration, no learning,
-//! BatchNorm on its running statistics because the nets run on the plain backend), in
-//! parallel over the cores, each judged by [`crate::metrics`].
+//! Test runs: on each case, `runs` runs of the greedy policy (no exploration, no learning
+//! unless asked, BatchNorm on its running statistics because the nets act on the plain
+//! backend), in parallel over the cores, each judged by [`crate::metrics`].
 //!
 //! The simulator is deterministic, so the runs of a designed arrangement would all be the
 //! same run: each run moves every object by a small seeded jitter (1 mm, 1 degree by default;
