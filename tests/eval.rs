@@ -183,33 +183,27 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     }
     assert!(first["learning"].is_null() && first["cases"][0]["why"].is_null());
 
-    // The table says the same in words; goal-agnostic runs clear the table.
-    let table = pushgrasp_ok(&[
-        "eval",
-        "--checkpoint",
-        checkpoint,
-        "--arrangements",
-        "configs/arrangements/challenging-05.toml",
-        "--runs",
-        "1",
-        "--goal-agnostic",
-    ]);
+    // The table says the same in words, with `flag`; goal-agnostic runs clear the table.
+    let table_with = |flag: &str| {
+        pushgrasp_ok(&[
+            "eval",
+            "--checkpoint",
+            checkpoint,
+            "--arrangements",
+            "configs/arrangements/challenging-05.toml",
+            "--runs",
+            "1",
+            flag,
+        ])
+    };
+    let table = table_with("--goal-agnostic");
     assert!(
         table.contains("completion")
             && table.contains("arrangements avg")
             && table.contains("goal-agnostic"),
         "{table}"
     );
-    let why = pushgrasp_ok(&[
-        "eval",
-        "--checkpoint",
-        checkpoint,
-        "--arrangements",
-        "configs/arrangements/challenging-05.toml",
-        "--runs",
-        "1",
-        "--why",
-    ]);
+    let why = table_with("--why");
     assert!(
         why.contains("any object picked")
             && why.contains("why runs failed, arrangements: 1 runs")
