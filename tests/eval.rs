@@ -283,30 +283,20 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
         "6",
     ]);
     assert!(err.contains("no-such-checkpoint"), "{err}");
+    // The checkpoint's random scenes with `more` arguments, which must be refused.
+    let refused = |more: &[&str]| {
+        let mut args = vec!["eval", "--checkpoint", checkpoint, "--random", "6"];
+        args.extend(more);
+        pushgrasp_fails(&args)
+    };
     // A bad setting is refused naming the config, --set and the field.
-    let err = pushgrasp_fails(&[
-        "eval",
-        "--checkpoint",
-        checkpoint,
-        "--random",
-        "6",
-        "--set",
-        "policy.grasp_margin=-0.01",
-    ]);
+    let err = refused(&["--set", "policy.grasp_margin=-0.01"]);
     assert!(
         err.contains("config.toml with --set") && err.contains("policy.grasp_margin"),
         "{err}"
     );
     // A goal-agnostic test has no labels to learn from.
-    let err = pushgrasp_fails(&[
-        "eval",
-        "--checkpoint",
-        checkpoint,
-        "--random",
-        "6",
-        "--goal-agnostic",
-        "--learn",
-    ]);
+    let err = refused(&["--goal-agnostic", "--learn"]);
     assert!(
         err.contains("--goal-agnostic") && err.contains("--learn"),
         "{err}"
