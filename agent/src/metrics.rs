@@ -150,14 +150,10 @@ impl CaseMetrics {
             (!complete.is_empty())
                 .then(|| complete.iter().map(|o| f(o)).sum::<f64>() / complete.len() as f64)
         };
-        let per_attempt = |count: fn(&RunOutcome) -> usize| -> Vec<f64> {
-            complete
-                .iter()
-                .map(|o| count(o) as f64 / o.grasp_attempts.max(1) as f64)
-                .collect()
-        };
-        let successes = per_attempt(|o| o.grasp_successes);
-        let any_object = per_attempt(|o| o.objects_picked);
+        let successes: Vec<f64> = complete
+            .iter()
+            .map(|o| o.grasp_successes as f64 / o.grasp_attempts.max(1) as f64)
+            .collect();
         let spread = mean_and_spread(&successes);
         let grasp_success_se = spread
             .filter(|_| successes.len() >= 2)
@@ -169,7 +165,9 @@ impl CaseMetrics {
             grasp_success: spread.map(|(mean, _)| mean),
             grasp_success_se,
             motion_number: mean(&|o| o.actions as f64),
-            any_object_grasp_success: mean_and_spread(&any_object).map(|(mean, _)| mean),
+            any_object_grasp_success: mean(&|o| {
+                o.objects_picked as f64 / o.grasp_attempts.max(1) as f64
+            }),
         }
     }
 

@@ -38,7 +38,6 @@ pub(crate) struct RunLearner<'a> {
     settings: &'a TestLearning,
     trainer: Trainer,
     waiting: Option<Executed>,
-    updates: usize,
 }
 
 /// An executed action and what its label needs.
@@ -50,7 +49,7 @@ struct Executed {
 }
 
 impl<'a> RunLearner<'a> {
-    /// A learner that starts from `nets` (the checkpoint's) for `side x side` heightmaps.
+    /// A learner that starts from `nets` (the checkpoint's), for `geometry`'s heightmaps.
     pub(crate) fn start(settings: &'a TestLearning, nets: &QNets, geometry: &Geometry) -> Self {
         let learning = LearningConfig {
             polyak_rate: 1.0,
@@ -74,7 +73,6 @@ impl<'a> RunLearner<'a> {
             settings,
             trainer,
             waiting: None,
-            updates: 0,
         }
     }
 
@@ -152,12 +150,11 @@ impl<'a> RunLearner<'a> {
             self.trainer.set_trained(net);
         }
         self.trainer.train_step(&[sample])?;
-        self.updates += 1;
         Ok(Some(self.trainer.published_nets()))
     }
 
-    /// Updates taken in this run.
+    /// Updates taken in this run (its trainer starts from none).
     pub(crate) fn updates(&self) -> usize {
-        self.updates
+        self.trainer.updates() as usize
     }
 }

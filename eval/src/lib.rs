@@ -186,14 +186,11 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     if let Some(path) = &args.runs_json {
         write_runs(path, &reports)?;
     }
-    let is_arranged: Vec<bool> = cases
-        .iter()
-        .map(|(_, scene)| matches!(scene, Scene::Arrangement(_)))
-        .collect();
     let arranged: Vec<&CaseReport> = reports
         .iter()
-        .zip(&is_arranged)
-        .filter_map(|(r, &arranged)| arranged.then_some(r))
+        .zip(&cases)
+        .filter(|(_, (_, scene))| matches!(scene, Scene::Arrangement(_)))
+        .map(|(r, _)| r)
         .collect();
     let average = (!arranged.is_empty())
         .then(|| CaseMetrics::average(&arranged.iter().map(|r| r.metrics).collect::<Vec<_>>()));
