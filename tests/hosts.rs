@@ -183,12 +183,16 @@ impl Machines {
     }
 
     /// [`Machines::central`] with no actors of its own, awaiting `remote_actors` on joined
-    /// hosts for a run of [`PAST_A_HEAD_START`] episodes.
-    fn central_awaiting(&self, run: &str, remote_actors: u32) -> Child {
+    /// hosts for a run of [`PAST_A_HEAD_START`] episodes, from `config` (the shipped stage-1
+    /// config by default).
+    fn central_awaiting(&self, run: &str, remote_actors: u32, config: Option<&Path>) -> Child {
         let (remote, episodes) = (remote_actors.to_string(), PAST_A_HEAD_START.to_string());
+        let config = config.map_or(CONFIG, |c| c.to_str().unwrap());
         self.central(
             run,
             &[
+                "--config",
+                config,
                 "--actors",
                 "0",
                 "--remote-actors",
@@ -379,7 +383,7 @@ fn two_joined_hosts_carry_every_step_get_weights_and_a_wrong_secret_is_refused()
     let machines = Machines::new(2);
     let run = "across";
     // Enough episodes that the host joining second still finds the run going.
-    let central = machines.central_awaiting(run, 2);
+    let central = machines.central_awaiting(run, 2, None);
     let secret = machines.secret(run);
 
     // A host with another secret is refused before anything of it reaches the run.
@@ -473,7 +477,7 @@ fn a_killed_host_leaves_the_run_going_and_a_late_joiner_gets_weights() {
     let machines = Machines::new(2);
     let run = "faults";
     // The doomed host alone must not finish the run before the late one joins.
-    let central = machines.central_awaiting(run, 2);
+    let central = machines.central_awaiting(run, 2, None);
     let secret = machines.secret(run);
     let doomed = machines.join(0, run, "doomed", &secret).spawn().unwrap();
     // Let it act a while, then kill it and everything it started.
@@ -519,6 +523,48 @@ fn a_killed_host_leaves_the_run_going_and_a_late_joiner_gets_weights() {
     assert!(
         u(&actors[0]["episodes"]) > 0 && u(&actors[0]["weights_version"]) > 0,
         "{actors:?}"
+    );
+    assert!(!alive(actor));
+}
+
+/// A joined host's actor that hangs is noticed by that host's launcher, killed and started
+/// again, with the cause in the host's report; the run finishes on it.
+#[test]
+fn a_hung_actor_of_a_joined_host_is_restarted_by_that_host() {
+    let machines = Machines::new(1);
+    let run = "remote-hang";
+    let impatient = stage1::stage1_with(
+        machines.logs(),
+        "impatient",
+        &[("run.heartbeat_timeout_s", toml::Value::Float(3.0))],
+    );
+    let central = machines.central_awaiting(run, 1, Some(&impatient));
+    let secret = machines.secret(run);
+    let joined = machines.join(0, run, "h0", &secret).spawn().unwrap();
+    let actor = first_actor_pid(&machines, run, "h0");
+    std::thread::sleep(HEAD_START);
+    let stopped = Command::new("kill")
+        .args(["-STOP", &actor.to_string()])
+        .status()
+        .unwrap();
+    assert!(stopped.success());
+    let central = wait_output(central, Duration::from_secs(300), "the central run");
+    succeeded(&central, "the central run");
+    let host = wait_output(joined, Duration::from_secs(60), "the host");
+    let out = succeeded(&host, "the host");
+    let report = json(&machines.run_dir(run).join("hosts/h0/reports/host.json"));
+    let faults = report["faults"].as_array().unwrap();
+    assert!(
+        u(&report["actor_restarts"]) == 1
+            && faults.len() == 1
+            && faults[0]["role"] == "actor-0-0"
+            && faults[0]["restarted"] == true
+            && faults[0]["cause"]
+                .as_str()
+                .unwrap_or_default()
+                .contains("no status report"),
+        "{report}\n{out}\n{}",
+        String::from_utf8_lossy(&host.stderr)
     );
     assert!(!alive(actor));
 }
@@ -692,7 +738,7 @@ fn with_the_link_cut(run: &str, while_cut: impl FnOnce(&Child)) -> Option<(Machi
     };
     // Every episode comes from the joined host, which holds its actor back once 8 parcels
     // wait, so the run cannot end by its budget while its link is cut.
-    let central = machines.central_awaiting(run, 1);
+    let central = machines.central_awaiting(run, 1, None);
     let secret = machines.secret(run);
     // The link comes back after 12 s, but Zenoh's reconnection backs off and TCP's SYN
     // retries are slow on a loaded machine: give up only long after that.

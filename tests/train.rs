@@ -722,18 +722,19 @@ fn published_versions(logs: &Path, run: &str) -> Vec<u64> {
 /// Starts a 1-actor run of 300 episodes from `config`, lets it train 2 s, sends `role`
 /// `kill`; returns whether the run succeeded once it ended, and the role's pid.
 fn role_fault(config: &Path, logs: &Path, run: &str, role: &str, kill: &str) -> (bool, i32) {
-    fault_once(config, logs, run, role, kill, || {
+    fault_once(config, logs, run, 1, role, kill, || {
         std::thread::sleep(Duration::from_secs(2))
     })
 }
 
-/// Starts a 1-actor run of 300 episodes from `config`, sends `role` `kill` once its roles
-/// are up and `ready` returns; returns whether the run succeeded once it ended, and the
-/// role's pid.
+/// Starts a run of `actors` actor processes and 300 episodes from `config`, sends `role`
+/// `kill` once its roles are up and `ready` returns; returns whether the run succeeded once
+/// it ended, and the role's pid.
 fn fault_once(
     config: &Path,
     logs: &Path,
     run: &str,
+    actors: usize,
     role: &str,
     kill: &str,
     ready: impl FnOnce(),
@@ -741,13 +742,20 @@ fn fault_once(
     let mut child = command_with(
         config,
         logs,
-        &["--actors", "1", "--episodes", "300", "--run-id", run],
+        &[
+            "--actors",
+            &actors.to_string(),
+            "--episodes",
+            "300",
+            "--run-id",
+            run,
+        ],
     )
     .stdout(Stdio::null())
     .stderr(Stdio::piped())
     .spawn()
     .expect("pushgrasp starts");
-    let pid = pid_of(&wait_for_processes(logs, run, 3), role);
+    let pid = pid_of(&wait_for_processes(logs, run, 2 + actors), role);
     ready();
     signal(pid, kill);
     let status = wait_exit(&mut child, Duration::from_secs(300));
@@ -765,15 +773,21 @@ fn one_at_a_time() -> MutexGuard<'static, ()> {
 /// The stage-1 config with a 3 s heartbeat timeout and a buffer snapshot every second,
 /// written into `logs`, and the turn of a test that uses it ([`one_at_a_time`]).
 fn impatient_config(logs: &Path) -> (std::path::PathBuf, MutexGuard<'static, ()>) {
+    impatient_config_with(logs, &[])
+}
+
+/// [`impatient_config`] with more settings.
+fn impatient_config_with(
+    logs: &Path,
+    more: &[(&str, toml::Value)],
+) -> (std::path::PathBuf, MutexGuard<'static, ()>) {
     let turn = one_at_a_time();
-    let config = stage1::stage1_with(
-        logs,
-        "impatient",
-        &[
-            ("run.heartbeat_timeout_s", toml::Value::Float(3.0)),
-            ("buffer.snapshot_every_s", toml::Value::Float(1.0)),
-        ],
-    );
+    let mut settings = vec![
+        ("run.heartbeat_timeout_s", toml::Value::Float(3.0)),
+        ("buffer.snapshot_every_s", toml::Value::Float(1.0)),
+    ];
+    settings.extend(more.iter().cloned());
+    let config = stage1::stage1_with(logs, "impatient", &settings);
     (config, turn)
 }
 
@@ -826,30 +840,48 @@ fn a_hung_learner_is_noticed_killed_and_restarted() {
     );
 }
 
+/// Two actors beside a learner that sets the pace (8 samples per insert), so the buffer's
+/// rate limiter holds them back most of the time: the one stopped is noticed by its own
+/// silence, the other, waiting in its sends, is not taken for hung.
 #[test]
-fn a_hung_actor_is_killed_and_restarted() {
+fn a_hung_actor_beside_a_held_one_is_killed_and_restarted() {
     let logs = logs();
-    let (config, _turn) = impatient_config(logs.path());
-    let (ok, actor) = role_fault(&config, logs.path(), "actor-hangs", "actor-0-0", "STOP");
+    let (config, _turn) = impatient_config_with(
+        logs.path(),
+        &[("buffer.samples_per_insert", toml::Value::Float(8.0))],
+    );
+    let (ok, actor) = fault_once(
+        &config,
+        logs.path(),
+        "actor-hangs",
+        2,
+        "actor-0-0",
+        "STOP",
+        || std::thread::sleep(Duration::from_secs(2)),
+    );
     assert!(ok, "the run failed after an actor hung");
     let actor_summary = summary(logs.path(), "actor-hangs");
     let faults = actor_summary["faults"].as_array().unwrap();
     assert!(
-        faults.iter().any(|f| f["role"] == "actor-0-0"
-            && f["restarted"] == true
-            && f["cause"]
+        faults.len() == 1
+            && faults[0]["role"] == "actor-0-0"
+            && faults[0]["restarted"] == true
+            && faults[0]["lost_messages"].is_u64()
+            && faults[0]["cause"]
                 .as_str()
                 .unwrap_or_default()
-                .contains("no status report")),
-        "{faults:?}"
+                .contains("no status report"),
+        "one fault, the hung actor's: {faults:?}"
     );
+    assert_eq!(u(&actor_summary["restarts"]), 1);
+    assert!(u(&actor_summary["buffer"]["episodes"]) >= 300);
     assert!(!Path::new(&format!("/proc/{actor}")).exists());
 }
 
 /// [`fault_once`] on the buffer once a snapshot holds 20 episodes.
 fn buffer_fault(config: &Path, logs: &Path, run: &str, kill: &str) -> (bool, i32) {
     let counters = logs.join(run).join("buffer-counters.json");
-    fault_once(config, logs, run, "buffer", kill, || {
+    fault_once(config, logs, run, 1, "buffer", kill, || {
         let deadline = Instant::now() + Duration::from_secs(120);
         while std::fs::read(&counters)
             .ok()

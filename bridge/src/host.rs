@@ -88,8 +88,6 @@ struct Flags {
     /// Times the central host's presence came back (or first came): parcels it may not
     /// have taken are sent again.
     central_returns: AtomicU64,
-    /// When the up thread last waited to send: the actors were held back then.
-    held_at: Mutex<Option<Instant>>,
     /// Stop the down thread.
     closed: AtomicBool,
 }
@@ -178,12 +176,6 @@ impl HostBridge {
         lock(&self.flags.central_gone_since).map_or(Duration::ZERO, |since| since.elapsed())
     }
 
-    /// When this host last held its actors back, waiting for the central host to listen
-    /// or to take its parcels: actors waiting in their sends are not hung.
-    pub fn held_at(&self) -> Option<Instant> {
-        *lock(&self.flags.held_at)
-    }
-
     /// Whether a bridge thread has ended (its error comes with [`HostBridge::finish`]).
     pub fn failed(&self) -> bool {
         self.up.is_finished() || self.down.is_finished()
@@ -260,8 +252,8 @@ impl Window {
 
     /// Waits until parcel `number` may go: the central host listens and has taken all but a
     /// few of those before it. False when told to abandon. While it waits the actors are
-    /// held back (`Flags::held_at`), and it connects to local actors that start meanwhile
-    /// (`steps_in`), so what they send before they stop outlives them.
+    /// held back (they report from their waiting sends), and it connects to local actors
+    /// that start meanwhile (`steps_in`), so what they send before they stop outlives them.
     fn wait_for_room(
         &mut self,
         publisher: &Publisher<'_>,
@@ -308,7 +300,6 @@ impl Window {
                     return Ok(true);
                 }
             }
-            *lock(&flags.held_at) = Some(Instant::now());
             steps_in.refresh()?;
             std::thread::sleep(POLL);
         }

@@ -28,7 +28,7 @@ use crate::progress::Watch;
 use crate::role::{RoleId, open_log};
 use crate::run_dir::RunDir;
 use crate::signals::Signals;
-use crate::supervisor::{Supervisor, Wiring};
+use crate::supervisor::{Fault, Supervisor, Wiring};
 use crate::write_json;
 
 #[derive(Args)]
@@ -76,6 +76,8 @@ pub struct HostSummary {
     /// Messages thrown away because the central host was gone for good.
     pub abandoned: u64,
     pub actor_restarts: u32,
+    /// Its actors that failed (crashed, or hung and killed), in order.
+    pub faults: Vec<Fault>,
     /// Why it stopped.
     pub ended: String,
 }
@@ -182,8 +184,6 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         eprintln!("while stopping: {problem}");
     }
     let sent = bridge.finish(give_up)?;
-    let restarts = supervisor.restarts();
-    supervisor.log.finish()?;
     let ended = match &outcome {
         Ok(End::Ordered) => "the run stopped its actors".to_string(),
         Ok(End::Interrupted) => "interrupted".to_string(),
@@ -198,9 +198,10 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         &placement,
         args.actors,
         &sent,
-        restarts,
+        &supervisor,
         &ended,
     );
+    supervisor.log.finish()?;
     write_json(&dir.report("host"), &summary)?;
     println!(
         "host {host} stopped ({ended}): {} steps and episode ends sent in {} parcels ({:.1}x compressed, {} sent again after the link dropped), {} thrown away",
@@ -231,8 +232,6 @@ fn follow(
 ) -> Result<End> {
     let mut last_news = Instant::now();
     loop {
-        // Actors waiting for the central host to listen or to take their steps are not hung.
-        watch.actors_held_at(bridge.held_at());
         watch.read(status, supervisor)?;
         if bridge.stop_ordered() {
             return Ok(End::Ordered);
@@ -265,7 +264,7 @@ fn summary(
     placement: &bridge::Placement,
     actors: u32,
     sent: &UpReport,
-    actor_restarts: u32,
+    supervisor: &Supervisor,
     ended: &str,
 ) -> HostSummary {
     HostSummary {
@@ -280,7 +279,8 @@ fn summary(
         raw_bytes: sent.raw_bytes,
         sent_bytes: sent.sent_bytes,
         abandoned: sent.abandoned,
-        actor_restarts,
+        actor_restarts: supervisor.restarts(),
+        faults: supervisor.faults.clone(),
         ended: ended.into(),
     }
 }

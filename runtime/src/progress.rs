@@ -294,19 +294,11 @@ pub struct Watch {
     pub progress: Progress,
     failures: Vec<String>,
     last_heard: BTreeMap<String, Instant>,
-    /// When the actors were last held back: by the buffer's rate limiter, or on a joined
-    /// host by its link to the central host.
-    actors_held: Option<Instant>,
     /// The roles whose tuning has been announced.
     tuning: HashSet<Role>,
 }
 
 impl Watch {
-    /// The actors were held back at `at` by something other than the buffer's reports.
-    pub fn actors_held_at(&mut self, at: Option<Instant>) {
-        self.actors_held = self.actors_held.max(at);
-    }
-
     /// Takes in the waiting reports, kills roles silent too long, then lets the supervisor
     /// deal with roles that exited.
     pub fn read(&mut self, status: &mut Inbox, supervisor: &mut Supervisor) -> Result<()> {
@@ -316,12 +308,6 @@ impl Watch {
             };
             if let Some(name) = reporter(&report) {
                 self.last_heard.insert(name, Instant::now());
-            }
-            if let Status::Buffer {
-                holding_back: true, ..
-            } = report
-            {
-                self.actors_held = Some(Instant::now());
             }
             if let Status::Warning { role, warning } = &report {
                 supervisor.announce(&format!("warning from the {role}: {warning}"))?;
@@ -344,7 +330,7 @@ impl Watch {
             }
         }
         let timeout = Duration::from_secs_f64(supervisor.config().run.heartbeat_timeout_s);
-        supervisor.kill_silent(&self.last_heard, self.actors_held, timeout);
+        supervisor.kill_silent(&self.last_heard, timeout);
         supervisor.check(
             &self.failures,
             &self.last_heard,

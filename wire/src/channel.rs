@@ -6,11 +6,11 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
+use crossbeam_channel::{Receiver, SendTimeoutError, Sender, TrySendError, bounded};
 
 use crate::error::TransportError;
 use crate::topic::{Delivery, Topic};
-use crate::transport::{Publisher, Subscriber, Transport};
+use crate::transport::{Publisher, Subscriber, Transport, WAITING_EVERY, Waiting};
 
 type Bytes = Arc<[u8]>;
 
@@ -37,18 +37,36 @@ struct Inlet {
 }
 
 impl Inlet {
-    fn deliver(&self, bytes: &Bytes, delivery: Delivery) -> bool {
+    /// Whether the subscriber is still there to take `bytes`.
+    fn deliver(
+        &self,
+        bytes: &Bytes,
+        delivery: Delivery,
+        waiting: Waiting<'_>,
+    ) -> Result<bool, TransportError> {
         match delivery {
-            Delivery::Lossless => self.sender.send(bytes.clone()).is_ok(),
-            Delivery::Latest => loop {
-                match self.sender.try_send(bytes.clone()) {
-                    Ok(()) => return true,
-                    Err(TrySendError::Full(_)) => {
-                        let _ = self.oldest.try_recv();
-                    }
-                    Err(TrySendError::Disconnected(_)) => return false,
+            Delivery::Lossless => loop {
+                match self.sender.send_timeout(bytes.clone(), WAITING_EVERY) {
+                    Ok(()) => return Ok(true),
+                    Err(SendTimeoutError::Timeout(_)) => waiting()?,
+                    Err(SendTimeoutError::Disconnected(_)) => return Ok(false),
                 }
             },
+            Delivery::Latest => Ok(self.overwrite(bytes)),
+        }
+    }
+
+    /// Delivers `bytes` in place of the oldest unread message if the channel is full;
+    /// whether the subscriber is still there.
+    fn overwrite(&self, bytes: &Bytes) -> bool {
+        loop {
+            match self.sender.try_send(bytes.clone()) {
+                Ok(()) => return true,
+                Err(TrySendError::Full(_)) => {
+                    let _ = self.oldest.try_recv();
+                }
+                Err(TrySendError::Disconnected(_)) => return false,
+            }
         }
     }
 }
@@ -83,7 +101,7 @@ impl Transport for ChannelTransport {
         let mut hub = self.hub();
         let state = hub.entry(topic).or_default();
         for bytes in &state.history {
-            inlet.deliver(bytes, Delivery::Latest);
+            inlet.overwrite(bytes);
         }
         state.subscribers.push(inlet);
         Ok(Box::new(ChannelSubscriber { receiver, alive }))
@@ -96,7 +114,7 @@ struct ChannelPublisher {
 }
 
 impl Publisher for ChannelPublisher {
-    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+    fn send_waiting(&mut self, bytes: &[u8], waiting: Waiting<'_>) -> Result<(), TransportError> {
         let bytes: Bytes = bytes.into();
         let inlets = {
             let mut hub = self.transport.hub();
@@ -114,7 +132,7 @@ impl Publisher for ChannelPublisher {
         };
         // Outside the lock: a lossless send may wait for its subscriber to read.
         for inlet in &inlets {
-            if !inlet.deliver(&bytes, self.topic.delivery()) {
+            if !inlet.deliver(&bytes, self.topic.delivery(), waiting)? {
                 inlet.alive.store(false, Ordering::Release);
             }
         }

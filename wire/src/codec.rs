@@ -6,7 +6,7 @@ use crate::error::WireError;
 use crate::message::Message;
 
 /// The version of [`Message`]'s encoding; raise it with any change to the messages.
-pub const PROTOCOL_VERSION: u16 = 7;
+pub const PROTOCOL_VERSION: u16 = 8;
 
 const MAGIC: [u8; 2] = *b"PG";
 const HEADER: usize = 4;

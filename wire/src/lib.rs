@@ -27,4 +27,4 @@ pub use shm::{
     StaleCleanup,
 };
 pub use topic::{Delivery, Fan, Topic};
-pub use transport::{Inbox, Outbox, Publisher, Subscriber, Transport};
+pub use transport::{Inbox, Outbox, Publisher, Subscriber, Transport, WAITING_EVERY, Waiting};

@@ -8,6 +8,9 @@ use sim::{Action, Heightmaps, ObjectId, PixelGrid, Primitive};
 use crate::codec::encode_into;
 
 /// Everything that travels between the roles of a run.
+// A message is made for one send and read once, never kept in bulk: a boxed step would cost
+// an allocation per step and save nothing.
+#[expect(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Message {
     Step(Step),
@@ -215,9 +218,6 @@ pub enum Status {
         relabelled: u64,
         /// Messages missing from some actor's stream (never expected: lossless transport).
         lost: u64,
-        /// The rate limiter is closed: the actors' steps wait in the transport for the
-        /// learner, so an actor's silence says nothing about its health.
-        holding_back: bool,
     },
     Learner {
         updates: u64,

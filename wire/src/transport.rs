@@ -1,5 +1,7 @@
 //! The transport interface, and the typed ends every role uses on top of it.
 
+use std::time::Duration;
+
 use crate::codec::{decode, encode_into};
 use crate::error::TransportError;
 use crate::message::Message;
@@ -11,10 +13,24 @@ pub trait Transport {
     fn subscriber(&self, topic: Topic) -> Result<Box<dyn Subscriber>, TransportError>;
 }
 
+/// How often a send waiting for room calls its `waiting` (see [`Publisher::send_waiting`]).
+pub const WAITING_EVERY: Duration = Duration::from_millis(250);
+
+/// What a waiting send calls now and then: a role that must be heard while it waits (an
+/// actor held back by the buffer's rate limiter) reports from it.
+pub type Waiting<'a> = &'a mut dyn FnMut() -> Result<(), TransportError>;
+
 /// Sends raw messages on one topic, as its [`Delivery`](crate::Delivery) says.
 pub trait Publisher {
-    /// Sends `bytes`; on a lossless topic it waits while the subscriber's buffer is full.
-    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
+    /// Sends `bytes`; on a lossless topic it waits while the subscriber's buffer is full,
+    /// calling `waiting` about every [`WAITING_EVERY`] meanwhile. On a topic several read
+    /// (one to many) it waits for the slowest reader without calling it.
+    fn send_waiting(&mut self, bytes: &[u8], waiting: Waiting<'_>) -> Result<(), TransportError>;
+
+    /// [`Publisher::send_waiting`], with nothing to do while it waits.
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.send_waiting(bytes, &mut || Ok(()))
+    }
 
     /// Connects subscribers that joined since the last send, handing them the topic's
     /// history. Shared memory needs it: a publisher of a topic with history (weights,
@@ -54,8 +70,17 @@ impl Outbox {
     }
 
     pub fn send(&mut self, message: &Message) -> Result<(), TransportError> {
+        self.send_waiting(message, &mut || Ok(()))
+    }
+
+    /// See [`Publisher::send_waiting`].
+    pub fn send_waiting(
+        &mut self,
+        message: &Message,
+        waiting: Waiting<'_>,
+    ) -> Result<(), TransportError> {
         encode_into(message, &mut self.encoded);
-        self.publisher.send(&self.encoded)
+        self.publisher.send_waiting(&self.encoded, waiting)
     }
 
     /// See [`Publisher::refresh`].

@@ -6,6 +6,7 @@
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
 
+mod heartbeat;
 mod pictures;
 mod ship;
 
@@ -26,6 +27,7 @@ use crate::backend::open_device;
 use crate::config::RunConfig;
 use crate::stopwatch::{Stopwatch, status_mb};
 use crate::{Lifeline, stop_requested};
+use heartbeat::Heartbeat;
 use pictures::log_pictures;
 use ship::{Shipper, Stream, Unlabelled};
 
@@ -97,8 +99,6 @@ pub fn run(
     lifeline: &Lifeline,
 ) -> Result<Vec<ActorReport>> {
     let mut control = Inbox::open(transport, Topic::Control)?;
-    let mut status = Outbox::open(transport, Topic::Status)?;
-    let mut shipper = Shipper::new(log, Outbox::open(transport, Topic::Steps)?, config);
     let mut policy = Policy::new(transport, config, log)?;
     let mut envs = (0..config.envs_per_actor)
         .map(|j| {
@@ -109,24 +109,24 @@ pub fn run(
             Environment::new(config, id, log)
         })
         .collect::<Result<Vec<_>>>()?;
+    let heartbeat = Heartbeat::new(
+        Outbox::open(transport, Topic::Status)?,
+        statuses(&envs, policy.version),
+    );
+    let steps = Outbox::open(transport, Topic::Steps)?;
+    let mut shipper = Shipper::new(log, steps, heartbeat, config);
     // Nothing to act with until the learner's first weights arrive.
-    if !policy.refresh(true, lifeline, &mut control)? {
+    if !policy.first_weights(lifeline, &mut control, shipper.heartbeat())? {
         return Ok(envs.into_iter().map(|env| env.report).collect());
     }
     let acting = Stopwatch::start();
     // Stops between actions, not only between episodes: a push chain can be long.
     while !lifeline.lost() && !stop_requested(&mut control, Role::Actor)? {
-        policy.refresh(false, lifeline, &mut control)?;
-        for env in tick(&mut envs, &policy, &mut shipper)? {
-            let env = &envs[env];
-            status.send(&Message::Status(Status::Actor {
-                actor: env.id.index,
-                incarnation: env.id.incarnation,
-                episodes: env.report.episodes,
-                steps_sent: env.stream.steps_sent,
-                weights_version: policy.version,
-            }))?;
-        }
+        policy.take_newest()?;
+        let ended = tick(&mut envs, &policy, &mut shipper)?;
+        shipper
+            .heartbeat()
+            .report(statuses(&envs, policy.version), &ended)?;
     }
     // A step still waiting for its next state is not sent: its label would be a guess. Its
     // episode's earlier steps reach the buffer, which keeps or flushes them.
@@ -145,6 +145,19 @@ pub fn run(
             ..env.report
         })
         .collect())
+}
+
+/// Each environment's progress, as the supervisor reads it.
+fn statuses(envs: &[Environment<'_>], weights_version: u64) -> Vec<Status> {
+    envs.iter()
+        .map(|env| Status::Actor {
+            actor: env.id.index,
+            incarnation: env.id.incarnation,
+            episodes: env.report.episodes,
+            steps_sent: env.stream.steps_sent,
+            weights_version,
+        })
+        .collect()
 }
 
 /// One action in every environment: those between episodes start one, those in one decide
@@ -213,30 +226,40 @@ impl Policy {
         })
     }
 
-    /// Takes the newest weights waiting, if any; with `wait`, blocks until some arrived.
-    fn refresh(&mut self, wait: bool, lifeline: &Lifeline, control: &mut Inbox) -> Result<bool> {
-        loop {
-            let mut newest: Option<Weights> = None;
-            for message in self.weights.drain()? {
-                if let Message::Weights(w) = message {
-                    newest = Some(w);
-                }
+    /// Takes the newest weights waiting, if any: whether there were.
+    fn take_newest(&mut self) -> Result<bool> {
+        let mut newest: Option<Weights> = None;
+        for message in self.weights.drain()? {
+            if let Message::Weights(w) = message {
+                newest = Some(w);
             }
-            if let Some(w) = newest {
-                self.agent
-                    .load_weights(&w.bytes)
-                    .context("loading the learner's weights")?;
-                self.version = w.version;
-                return Ok(true);
-            }
-            if !wait {
-                return Ok(false);
-            }
+        }
+        let Some(w) = newest else {
+            return Ok(false);
+        };
+        self.agent
+            .load_weights(&w.bytes)
+            .context("loading the learner's weights")?;
+        self.version = w.version;
+        Ok(true)
+    }
+
+    /// Waits for the learner's first weights, heard meanwhile; false if the run stopped
+    /// first.
+    fn first_weights(
+        &mut self,
+        lifeline: &Lifeline,
+        control: &mut Inbox,
+        heartbeat: &mut Heartbeat,
+    ) -> Result<bool> {
+        while !self.take_newest()? {
             if lifeline.lost() || stop_requested(control, Role::Actor)? {
                 return Ok(false);
             }
+            heartbeat.beat()?;
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
+        Ok(true)
     }
 }
 

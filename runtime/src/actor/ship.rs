@@ -10,6 +10,7 @@ use policy::{Decision, PushReward, grasp_label, grasp_reward, push_label};
 use sim::Primitive;
 use wire::{EpisodeEnd, Message, Origin, Outbox, Step};
 
+use super::heartbeat::Heartbeat;
 use crate::config::RunConfig;
 use crate::record::{ACTOR_EPISODE, ACTOR_STEP, EpisodeRecord, StepRecord};
 
@@ -38,10 +39,12 @@ pub(super) struct Stream {
 }
 
 /// What every environment of the process ships through: the one publisher of the steps
-/// topic, the log and the labels' settings.
+/// topic, the process's heartbeat (it beats while a send waits), the log and the labels'
+/// settings.
 pub(super) struct Shipper<'a> {
     log: &'a RunLog,
     outbox: Outbox,
+    heartbeat: Heartbeat,
     gamma: f32,
     push_reward: PushReward,
 }
@@ -97,13 +100,31 @@ impl Stream {
 }
 
 impl<'a> Shipper<'a> {
-    pub(super) fn new(log: &'a RunLog, outbox: Outbox, config: &RunConfig) -> Self {
+    pub(super) fn new(
+        log: &'a RunLog,
+        outbox: Outbox,
+        heartbeat: Heartbeat,
+        config: &RunConfig,
+    ) -> Self {
         Self {
             log,
             outbox,
+            heartbeat,
             gamma: config.learning.gamma,
             push_reward: config.push_reward,
         }
+    }
+
+    pub(super) fn heartbeat(&mut self) -> &mut Heartbeat {
+        &mut self.heartbeat
+    }
+
+    /// Sends on the steps topic; held back by the buffer, the process is heard meanwhile.
+    fn send(&mut self, message: &Message) -> Result<()> {
+        let heartbeat = &mut self.heartbeat;
+        Ok(self
+            .outbox
+            .send_waiting(message, &mut || heartbeat.beat())?)
     }
 
     /// Completes a pending step with the next state's values and sends it (and the end of
@@ -171,12 +192,12 @@ impl<'a> Shipper<'a> {
             weights_version: step.weights_version,
             pictures_ns: pending.pictures_ns,
         };
-        self.outbox.send(&Message::Step(step))?;
+        self.send(&Message::Step(step))?;
         stream.steps_sent += 1;
         self.log.json(ACTOR_STEP, &record)?;
         if let Some(mut end) = pending.ends {
             end.origin = stream.next_origin();
-            self.outbox.send(&Message::EpisodeEnd(end.clone()))?;
+            self.send(&Message::EpisodeEnd(end.clone()))?;
             if end.trial {
                 return Ok(());
             }

@@ -350,7 +350,6 @@ impl BufferRole {
             capacity: 2 * self.replay.replay().capacity() as u64,
             relabelled: stats.relabelled,
             lost: self.report.lost(),
-            holding_back: !self.replay.can_insert(1),
         }
     }
 

@@ -411,16 +411,11 @@ impl Supervisor {
     /// started, when it never did): the next [`Supervisor::check`] handles it as a crash.
     /// Roles wait on those upstream (everyone on the buffer; actors also on the learner,
     /// whose pace lets their steps in): while one upstream is quiet, those downstream are
-    /// not judged, and their silence counts from its latest start. Actors held back by the
-    /// buffer's rate limiter (a slow learner) wait in their sends: their silence counts from
-    /// when it last held them (`actors_held`).
+    /// not judged, and their silence counts from its latest start. An actor held back by
+    /// the buffer's rate limiter (a slow learner), or on a joined host by its link, reports
+    /// from its waiting send, so each actor is judged by its own silence.
     /// (A thread cannot be killed; the threads wiring is for tests and small runs.)
-    pub fn kill_silent(
-        &mut self,
-        last_heard: &BTreeMap<String, Instant>,
-        actors_held: Option<Instant>,
-        timeout: Duration,
-    ) {
+    pub fn kill_silent(&mut self, last_heard: &BTreeMap<String, Instant>, timeout: Duration) {
         let silence = |slot: &Slot, since: Instant| {
             last_heard
                 .get(&slot.spec.reporter())
@@ -434,10 +429,7 @@ impl Supervisor {
                 .iter_mut()
                 .filter(|s| !s.done && s.hung.is_none() && s.spec.kind() == kind)
             {
-                let mut since = upstream_started.map_or(slot.started, |up| slot.started.max(up));
-                if kind == Role::Actor {
-                    since = actors_held.map_or(since, |held| since.max(held));
-                }
+                let since = upstream_started.map_or(slot.started, |up| slot.started.max(up));
                 let silent = silence(slot, since);
                 if silent > timeout && slot.worker.pid().is_some() {
                     slot.worker.kill();

@@ -43,8 +43,8 @@ use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 
 use crate::error::TransportError;
-use crate::topic::{Delivery, Topic};
-use crate::transport::{Publisher, Subscriber, Transport};
+use crate::topic::{Delivery, Fan, Topic};
+use crate::transport::{Publisher, Subscriber, Transport, WAITING_EVERY, Waiting};
 
 mod limits;
 mod stale;
@@ -299,11 +299,14 @@ impl Transport for ShmTransport {
             // Unused: the service overwrites the oldest message instead.
             Delivery::Latest => BackpressureStrategy::DiscardData,
         };
+        // Given up on, a message goes again to every reader: only where there is one reader
+        // does that not send it twice.
+        let patience = (topic.fan() != Fan::OneToMany).then_some(WAITING_EVERY);
         let (allocation, first_slice) = self.limits.memory(topic);
         let publisher = service
             .publisher_builder()
             .backpressure_strategy(backpressure)
-            .set_backpressure_handler(wait_for_room)
+            .set_backpressure_handler(move |info: &BackpressureInfo| wait_for_room(info, patience))
             .allocation_strategy(allocation)
             .initial_max_slice_len(first_slice)
             .create()
@@ -342,8 +345,12 @@ fn backoff(attempt: u64) -> Duration {
 /// While a subscriber's buffer stays full, a publisher sleeps between tries. iceoryx2's own
 /// wait yields to the scheduler 10,000 times before it first sleeps: an actor held back by
 /// the rate limiter spun on a core that the learner it waited for needed (a sixth of an
-/// actor's time in `perf`, on two cores).
-fn wait_for_room(info: &BackpressureInfo) -> BackpressureAction {
+/// actor's time in `perf`, on two cores). After `patience` it gives up on the message (the
+/// sender tries again, after its `waiting`: see [`Publisher::send_waiting`]).
+fn wait_for_room(info: &BackpressureInfo, patience: Option<Duration>) -> BackpressureAction {
+    if patience.is_some_and(|p| info.elapsed_time >= p) {
+        return BackpressureAction::DiscardData;
+    }
     std::thread::sleep(backoff(info.retries));
     BackpressureAction::Retry
 }
@@ -377,18 +384,24 @@ impl ShmPublisher {
 }
 
 impl Publisher for ShmPublisher {
-    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+    fn send_waiting(&mut self, bytes: &[u8], waiting: Waiting<'_>) -> Result<(), TransportError> {
         if self.topic.delivery() == Delivery::Latest {
             return self.send_once(bytes).map(|_| ());
         }
         // iceoryx2 waits for room only in the buffers of subscribers that have connected to
         // this publisher (they do so when they next look for messages); it drops the message
-        // for a subscriber that has not and whose buffer is full. When nobody took the
-        // message for that reason, wait and send it again: nobody has it twice.
+        // for a subscriber that has not and whose buffer is full, and for one whose buffer
+        // stayed full past the handler's patience. When nobody took the message for either
+        // reason, wait and send it again: nobody has it twice.
+        let mut since_waiting = Instant::now();
         for attempt in 0.. {
             let subscribers = self.service.dynamic_config().number_of_subscribers();
             if self.send_once(bytes)? > 0 || subscribers == 0 {
                 break;
+            }
+            if since_waiting.elapsed() >= WAITING_EVERY {
+                waiting()?;
+                since_waiting = Instant::now();
             }
             std::thread::sleep(backoff(attempt));
         }
