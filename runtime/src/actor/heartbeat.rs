@@ -1,9 +1,9 @@
-//! What an actor process tells the supervisor of its environments: their progress after every
-//! action, and the same again while it waits (for its first weights, or in a send the buffer's
-//! rate limiter holds back). So an actor that is only waiting is heard, and one that is hung
-//! (stopped, a physics step that never returns) falls silent and is restarted. Its
-//! environments step together, one batch an action, so one stuck environment silences its
-//! whole process: the process is the unit the supervisor judges and restarts.
+//! What an actor process tells the supervisor of its environments: their progress at each
+//! episode's end and once a second, also while it waits (for its first weights, or in a send
+//! the buffer's rate limiter holds back). So an actor that is only waiting is heard, and one
+//! that is hung (stopped, a physics step that never returns) falls silent and is restarted.
+//! Its environments step together, one batch an action, so one stuck environment silences
+//! its whole process: the process is the unit the supervisor judges and restarts.
 
 use std::time::{Duration, Instant};
 
