@@ -23,8 +23,8 @@ pub type Waiting<'a> = &'a mut dyn FnMut() -> Result<(), TransportError>;
 /// Sends raw messages on one topic, as its [`Delivery`](crate::Delivery) says.
 pub trait Publisher {
     /// Sends `bytes`; on a lossless topic it waits while the subscriber's buffer is full,
-    /// calling `waiting` about every [`WAITING_EVERY`] meanwhile. On a topic several read
-    /// (one to many) it waits for the slowest reader without calling it.
+    /// calling `waiting` about every [`WAITING_EVERY`] meanwhile. Shared memory, on a topic
+    /// several read (one to many), waits for the slowest reader without calling it.
     fn send_waiting(&mut self, bytes: &[u8], waiting: Waiting<'_>) -> Result<(), TransportError>;
 
     /// [`Publisher::send_waiting`], with nothing to do while it waits.
