@@ -8,8 +8,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use rundir::record::{LAUNCHER_SUMMARY, PROCESS_MEMORY};
 use runtime::memory::MemoryRecord;
-use runtime::record::{LAUNCHER_SUMMARY, PROCESS_MEMORY};
 use serde_json::Value;
 
 #[path = "common/stage1.rs"]

@@ -12,7 +12,7 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use learner::adam::Adam;
 use learner::{Checkpoint, LearningConfig, Manifest, Sample, SavedNets, TrainedNet, Trainer};
-use qnet::{ActingNets, Backend, Difference, NetInput, QNetConfig, QNets};
+use qnet::{ActingNets, Backend, Difference, NetInput, QNetConfig, QNets, RotatedQMaps};
 use sim::{Action, Camera, Primitive, SimConfig, Tabletop};
 
 mod common;

@@ -2,7 +2,7 @@
 //! observation and a goal into a decision.
 
 use policy::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
-use qnet::{ActingNets, Device, Geometry, NetInput, QNetConfig, QNetError, QNets};
+use qnet::{ActingNets, Device, Geometry, NetInput, QNetConfig, QNetError, QNets, RotatedQMaps};
 use rand_chacha::ChaCha8Rng;
 use sim::{Heightmaps, ObjectId, Primitive};
 

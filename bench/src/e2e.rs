@@ -17,9 +17,9 @@ use clap::Args;
 use serde_json::{Map, Value};
 
 use super::print_figures;
-use runtime::backend::Backend;
-use runtime::learner::LearnerReport;
-use runtime::{RunDir, read_json};
+use rundir::LearnerReport;
+use rundir::backend::Backend;
+use rundir::{RunDir, read_json};
 
 #[derive(Args)]
 pub struct E2eBenchArgs {

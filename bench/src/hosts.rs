@@ -84,7 +84,7 @@ struct HostsFigures {
 const SCENES: u64 = 16;
 
 pub fn bench_hosts(args: &HostsBenchArgs) -> Result<()> {
-    let config = runtime::config::RunConfig::load(&args.config)?;
+    let config = rundir::config::RunConfig::load(&args.config)?;
     let steps = (0..SCENES)
         .map(|seed| real_step(&config.sim, seed))
         .collect::<Result<Vec<_>>>()?;

@@ -7,7 +7,7 @@ use anyhow::Result;
 use clap::{Args, Subcommand};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use runtime::backend::Backend;
+use rundir::backend::Backend;
 use runtime::stopwatch::status_mb;
 use serde::Serialize;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
@@ -271,14 +271,14 @@ fn print_figures(figures: &serde_json::Value, json: bool) -> Result<()> {
 
 fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     use learner::{LearningConfig, Sample, TrainedNet, Trainer};
-    use qnet::{ActingNets, Device, Difference, NetInput, QNetConfig, QNets};
+    use qnet::{ActingNets, Device, Difference, NetInput, QNetConfig, QNets, RotatedQMaps};
 
     let reps = args.reps.max(1);
     let backend = args.backend;
-    let open = runtime::backend::open(backend, "learner")?;
+    let open = rundir::backend::open(backend, "learner")?;
     let device = open.device;
     let net = match &args.config {
-        Some(path) => runtime::config::RunConfig::load(path)?.net,
+        Some(path) => rundir::config::RunConfig::load(path)?.net,
         None => QNetConfig::default(),
     };
     let mut figures = serde_json::Map::new();

@@ -13,8 +13,8 @@ use serde_json::{Map, Value};
 
 use super::e2e::{actions_per_s, round, train_run};
 use super::print_figures;
-use runtime::config::RunConfig;
-use runtime::files_with_extension;
+use rundir::config::RunConfig;
+use rundir::files_with_extension;
 
 #[derive(Args)]
 pub struct LoggingBenchArgs {

@@ -23,10 +23,10 @@ use serde_json::{Map, Value};
 
 use super::e2e::round;
 use super::{print_figures, status_mb};
+use rundir::ProcessEntry;
+use rundir::record::{LAUNCHER_PROGRESS, PROCESS_MEMORY};
+use rundir::{RunDir, read_json};
 use runtime::memory::MemoryRecord;
-use runtime::record::{LAUNCHER_PROGRESS, PROCESS_MEMORY};
-use runtime::supervisor::ProcessEntry;
-use runtime::{RunDir, read_json};
 
 /// The growth a process's memory may show over the measured window.
 const BOUND_PCT: f64 = 5.0;

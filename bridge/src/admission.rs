@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use serde::{Deserialize, Serialize};
+use rundir::HostReport;
 
 use crate::join::{JoinReply, JoinRequest, Placement};
 
@@ -30,50 +30,30 @@ pub struct Admission {
     pub hosts_file: PathBuf,
 }
 
-/// A joined host as the run records it (`hosts.json`, and the run's summary).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct HostReport {
-    pub host: String,
-    /// Its actors' environments are indices `first_actor..first_actor + actors` (one per
-    /// actor process unless the run's `envs_per_actor` says more).
-    pub first_actor: u32,
-    pub actors: u32,
-    /// Times it joined (1 for a host that never left).
-    pub joins: u32,
-    /// Whether its session is present now.
-    pub alive: bool,
-    /// Whether it said it had sent all it will (at the run's stop).
-    pub done: bool,
-    /// Times its session was lost (killed, or its link dropped past Zenoh's lease).
-    pub lost_links: u32,
-    pub steps_received: u64,
-    pub episode_ends_received: u64,
-    /// Messages refused: not a step or an episode end, of an actor not its own, damaged.
-    pub rejected: u64,
-    /// Steps its actors reported sent that never arrived (a host that died mid-send).
-    pub lost_in_flight: u64,
+/// A joined host as the central host follows it: its report, and what the report leaves out.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct JoinedHost {
+    pub(crate) report: HostReport,
     /// Each actor stream's newest report: (index, incarnation) -> (steps sent, received).
-    #[serde(skip)]
     pub(crate) streams: BTreeMap<(u32, u32), (u64, u64)>,
     /// The newest parcel taken since it last joined: one sent again after its link came
     /// back is taken once.
-    #[serde(skip)]
     pub(crate) parcels_taken: u64,
     /// When its session was last lost before it was done.
-    #[serde(skip)]
     pub(crate) lost_at: Option<Instant>,
 }
 
-impl HostReport {
+impl JoinedHost {
     pub(crate) fn owns(&self, actor: u32) -> bool {
-        (self.first_actor..self.first_actor + self.actors).contains(&actor)
+        (self.report.first_actor..self.report.first_actor + self.report.actors).contains(&actor)
     }
 
     /// Whether the run's stop waits for it: it has not said it is done, and its session is
     /// present or was lost less than `grace` ago (a dropped link comes back by itself, and
     /// the order to stop reaches it then).
     pub(crate) fn awaited(&self, grace: Duration) -> bool {
-        !self.done && (self.alive || self.lost_at.is_some_and(|at| at.elapsed() < grace))
+        !self.report.done
+            && (self.report.alive || self.lost_at.is_some_and(|at| at.elapsed() < grace))
     }
 
     /// Steps its actors reported sent that never arrived, from the streams seen in this
@@ -82,7 +62,7 @@ impl HostReport {
         if self.streams.is_empty() {
             return;
         }
-        self.lost_in_flight = self
+        self.report.lost_in_flight = self
             .streams
             .values()
             .map(|&(sent, received)| sent.saturating_sub(received))
@@ -93,7 +73,7 @@ impl HostReport {
 /// The hosts of the run, shared by the bridge's threads.
 pub(crate) struct Hosts {
     admission: Admission,
-    pub(crate) hosts: BTreeMap<String, HostReport>,
+    pub(crate) hosts: BTreeMap<String, JoinedHost>,
     /// No host is admitted once the run is stopping.
     pub(crate) closing: bool,
     /// Hosts lost and back, in order (for the run's faults).
@@ -116,10 +96,14 @@ impl Hosts {
                 std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
             let saved: Vec<HostReport> = serde_json::from_slice(&text)
                 .with_context(|| format!("reading {}", path.display()))?;
-            for mut host in saved {
-                host.alive = false;
-                host.done = false;
-                hosts.insert(host.host.clone(), host);
+            for mut report in saved {
+                report.alive = false;
+                report.done = false;
+                let host = JoinedHost {
+                    report,
+                    ..JoinedHost::default()
+                };
+                hosts.insert(host.report.host.clone(), host);
             }
         }
         Ok(Self {
@@ -133,7 +117,7 @@ impl Hosts {
     pub(crate) fn save(&self) -> Result<()> {
         let path = &self.admission.hosts_file;
         let tmp = path.with_extension("json.tmp");
-        let hosts: Vec<&HostReport> = self.hosts.values().collect();
+        let hosts: Vec<&HostReport> = self.hosts.values().map(|h| &h.report).collect();
         std::fs::write(&tmp, serde_json::to_vec_pretty(&hosts)?)
             .with_context(|| format!("writing {}", tmp.display()))?;
         std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
@@ -158,34 +142,38 @@ impl Hosts {
         let next_free = self
             .hosts
             .values()
-            .map(|h| h.first_actor + h.actors)
+            .map(|h| h.report.first_actor + h.report.actors)
             .fold(self.admission.local_actors, u32::max);
         let envs_per_actor = self.admission.envs_per_actor.max(1);
         let indices = request.actors * envs_per_actor;
         let host = self
             .hosts
             .entry(request.host.clone())
-            .or_insert_with(|| HostReport {
-                host: request.host.clone(),
-                first_actor: next_free,
-                actors: indices,
-                ..HostReport::default()
+            .or_insert_with(|| JoinedHost {
+                report: HostReport {
+                    host: request.host.clone(),
+                    first_actor: next_free,
+                    actors: indices,
+                    ..HostReport::default()
+                },
+                ..JoinedHost::default()
             });
-        if host.actors != indices {
+        let report = &mut host.report;
+        if report.actors != indices {
             return refuse(format!(
                 "host {:?} joined this run before with {} actors: join with as many, or under \
                  another --host-name",
-                host.host,
-                host.actors / envs_per_actor
+                report.host,
+                report.actors / envs_per_actor
             ));
         }
         let placement = Placement {
-            first_actor: host.first_actor,
-            incarnation: host.joins * INCARNATIONS_PER_JOIN,
+            first_actor: report.first_actor,
+            incarnation: report.joins * INCARNATIONS_PER_JOIN,
             config: self.admission.config.clone(),
         };
-        host.joins += 1;
-        host.done = false;
+        report.joins += 1;
+        report.done = false;
         host.parcels_taken = 0;
         match self.save() {
             Ok(()) => JoinReply::Accepted(placement),
@@ -193,12 +181,15 @@ impl Hosts {
         }
     }
 
-    pub(crate) fn host(&mut self, name: &str) -> &mut HostReport {
+    pub(crate) fn host(&mut self, name: &str) -> &mut JoinedHost {
         self.hosts
             .entry(name.to_owned())
-            .or_insert_with(|| HostReport {
-                host: name.to_owned(),
-                ..HostReport::default()
+            .or_insert_with(|| JoinedHost {
+                report: HostReport {
+                    host: name.to_owned(),
+                    ..HostReport::default()
+                },
+                ..JoinedHost::default()
             })
     }
 }
@@ -236,27 +227,28 @@ mod tests {
     #[test]
     fn the_stop_waits_for_a_host_not_done_while_it_is_here_or_just_lost() {
         let grace = Duration::from_secs(30);
-        let here = HostReport {
-            alive: true,
-            ..HostReport::default()
+        let here = JoinedHost {
+            report: HostReport {
+                alive: true,
+                ..HostReport::default()
+            },
+            ..JoinedHost::default()
         };
         assert!(here.awaited(grace));
-        let done = HostReport {
-            done: true,
-            ..here.clone()
-        };
+        let mut done = here.clone();
+        done.report.done = true;
         assert!(!done.awaited(grace));
-        let just_lost = HostReport {
+        let just_lost = JoinedHost {
             lost_at: Some(Instant::now()),
-            ..HostReport::default()
+            ..JoinedHost::default()
         };
         assert!(just_lost.awaited(grace));
-        let long_lost = HostReport {
+        let long_lost = JoinedHost {
             lost_at: Instant::now().checked_sub(Duration::from_secs(31)),
-            ..HostReport::default()
+            ..JoinedHost::default()
         };
         assert!(long_lost.lost_at.is_some() && !long_lost.awaited(grace));
-        assert!(!HostReport::default().awaited(grace), "never here");
+        assert!(!JoinedHost::default().awaited(grace), "never here");
     }
 
     #[test]

@@ -12,12 +12,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
+use rundir::HostReport;
 use wire::{Message, Status, Topic, Transport};
 use zenoh::Wait;
 use zenoh::sample::SampleKind;
 use zenoh::{Session, liveliness::LivelinessToken};
 
-use crate::admission::{Admission, HostNews, HostReport, Hosts};
+use crate::admission::{Admission, HostNews, Hosts, JoinedHost};
 use crate::join::{self, JoinReply, JoinRequest};
 use crate::link::{self, Keys, Stream};
 use crate::parcel::{self, Parcel};
@@ -123,7 +124,7 @@ impl Central {
                 .hosts
                 .values()
                 .filter(|h| h.awaited(RETURN_GRACE))
-                .map(|h| h.host.clone())
+                .map(|h| h.report.host.clone())
                 .collect();
             if waiting.is_empty() || Instant::now() > deadline || self.failed() {
                 return waiting;
@@ -146,9 +147,9 @@ impl Central {
         }
         let report = {
             let mut hosts = lock(&self.shared.hosts);
-            hosts.hosts.values_mut().for_each(HostReport::count_lost);
+            hosts.hosts.values_mut().for_each(JoinedHost::count_lost);
             let _ = hosts.save();
-            hosts.hosts.values().cloned().collect()
+            hosts.hosts.values().map(|h| h.report.clone()).collect()
         };
         self.shared
             .session
@@ -270,17 +271,17 @@ fn carry_up(shared: &Shared) -> Result<()> {
             let mut hosts = lock(hosts);
             let host = hosts.host(name);
             if sample.kind() == SampleKind::Put {
-                let back = !host.alive && host.lost_links > 0;
-                host.alive = true;
+                let back = !host.report.alive && host.report.lost_links > 0;
+                host.report.alive = true;
                 resend.store(true, Ordering::Release);
                 if back {
                     hosts.news.push(HostNews::Back(name.to_owned()));
                 }
-            } else if host.alive {
-                host.alive = false;
+            } else if host.report.alive {
+                host.report.alive = false;
                 // Done: it said it had sent everything, and leaving is what it should do.
-                if !host.done {
-                    host.lost_links += 1;
+                if !host.report.done {
+                    host.report.lost_links += 1;
                     host.lost_at = Some(Instant::now());
                     hosts.news.push(HostNews::Lost(name.to_owned()));
                 }
@@ -311,7 +312,7 @@ fn take_report(
             host.streams.entry((actor, incarnation)).or_default().0 = steps_sent;
             status_out.send(bytes)?;
         }
-        _ => host.rejected += 1,
+        _ => host.report.rejected += 1,
     }
     Ok(())
 }
@@ -328,7 +329,7 @@ fn take_parcel(
         Ok(unpacked) => unpacked,
         Err(e) => {
             eprintln!("host {host}: {e}");
-            lock(hosts).host(host).rejected += 1;
+            lock(hosts).host(host).report.rejected += 1;
             return Ok(None);
         }
     };
@@ -344,7 +345,7 @@ fn take_parcel(
     let messages = match parcel {
         Parcel::Messages(messages) => messages,
         Parcel::Done => {
-            lock(hosts).host(host).done = true;
+            lock(hosts).host(host).report.done = true;
             return Ok(Some(number));
         }
     };
@@ -356,7 +357,7 @@ fn take_parcel(
             let host = hosts.host(host);
             let admitted = match wire::decode(&message) {
                 Ok(Message::Step(step)) if host.owns(step.origin.actor) => {
-                    host.steps_received += 1;
+                    host.report.steps_received += 1;
                     let origin = step.origin;
                     host.streams
                         .entry((origin.actor, origin.incarnation))
@@ -365,13 +366,13 @@ fn take_parcel(
                     true
                 }
                 Ok(Message::EpisodeEnd(end)) if host.owns(end.origin.actor) => {
-                    host.episode_ends_received += 1;
+                    host.report.episode_ends_received += 1;
                     true
                 }
                 _ => false,
             };
             if !admitted {
-                host.rejected += 1;
+                host.report.rejected += 1;
             }
             admitted
         };
@@ -488,10 +489,10 @@ mod tests {
         let mut delivered = 0;
         while steps_in.receive(&mut |_| delivered += 1).unwrap() {}
         assert_eq!(delivered, 2);
-        assert_eq!(lock(&hosts).host("h").episode_ends_received, 2);
+        assert_eq!(lock(&hosts).host("h").report.episode_ends_received, 2);
         // A host that joins again numbers its parcels from 1 again.
         assert!(matches!(join(), JoinReply::Accepted(_)));
         assert_eq!(take(&parcel(1, &[episode_end(1, 2)])), Some(1));
-        assert_eq!(lock(&hosts).host("h").episode_ends_received, 3);
+        assert_eq!(lock(&hosts).host("h").report.episode_ends_received, 3);
     }
 }

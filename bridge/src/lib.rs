@@ -14,7 +14,7 @@ pub mod secret;
 pub mod session;
 pub mod traces;
 
-pub use admission::{Admission, HostNews, HostReport};
+pub use admission::{Admission, HostNews};
 pub use central::Central;
 pub use host::HostBridge;
 pub use join::{JoinRequest, Placement};

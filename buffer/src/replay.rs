@@ -126,6 +126,26 @@ impl Ring {
         (slot, generation, p)
     }
 
+    /// The first damaged observation, named by its slot: the items' own first, then
+    /// their successors' (mostly other items' own, read back as one).
+    fn check_observations(&self, primitive: Primitive) -> Result<(), String> {
+        let items = || self.items.iter().enumerate();
+        let own = items().map(|(slot, item)| (slot, item, &item.obs, ""));
+        let next = items().filter_map(|(slot, item)| {
+            let next = item.next.as_ref()?;
+            Some((slot, item, &next.obs, ", its next step's"))
+        });
+        own.chain(next).try_for_each(|(slot, item, obs, whose)| {
+            obs.check().map_err(|why| {
+                format!(
+                    "the {primitive:?} ring's observation at slot {slot} (episode {}, step {}{whose}): \
+                     {why}",
+                    item.episode, item.step
+                )
+            })
+        })
+    }
+
     fn check(&self, capacity: usize) -> Result<(), String> {
         let len = self.items.len();
         let expected = usize::try_from(self.inserted).map_or(capacity, |n| n.min(capacity));
@@ -436,8 +456,8 @@ impl PrioritizedReplay {
 
     /// Checks every stored observation's bytes against its hash (a snapshot just read).
     pub(crate) fn check_observations(&self) -> Result<(), String> {
-        crate::snapshot::check_ring_observations(&self.push, Primitive::Push)?;
-        crate::snapshot::check_ring_observations(&self.grasp, Primitive::Grasp)
+        self.push.check_observations(Primitive::Push)?;
+        self.grasp.check_observations(Primitive::Grasp)
     }
 
     /// Checks the invariants a snapshot must satisfy against the config it carries (before

@@ -18,7 +18,6 @@ use std::path::{Path, PathBuf};
 use experience::Transition;
 use serde::de::Error as _;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
-use sim::Primitive;
 use xxhash_rust::xxh3::Xxh3;
 
 use crate::chunks::SharedChunks;
@@ -276,26 +275,6 @@ impl<'de> Deserialize<'de> for Ring {
             max_priority: ring.max_priority,
         })
     }
-}
-
-/// The first damaged observation of `ring`, named by its slot: the items' own first, then
-/// their successors' (mostly other items' own, read back as one).
-pub(crate) fn check_ring_observations(ring: &Ring, primitive: Primitive) -> Result<(), String> {
-    let items = || ring.items.iter().enumerate();
-    let own = items().map(|(slot, item)| (slot, item, &item.obs, ""));
-    let next = items().filter_map(|(slot, item)| {
-        let next = item.next.as_ref()?;
-        Some((slot, item, &next.obs, ", its next step's"))
-    });
-    own.chain(next).try_for_each(|(slot, item, obs, whose)| {
-        obs.check().map_err(|why| {
-            format!(
-                "the {primitive:?} ring's observation at slot {slot} (episode {}, step {}{whose}): \
-                 {why}",
-                item.episode, item.step
-            )
-        })
-    })
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use image::{DynamicImage, GrayImage, ImageBuffer, Luma, RgbImage};
 use mcaplog::RawImage;
 
 use super::run::Run;
-use runtime::record::ACTOR_PICTURES;
+use rundir::record::ACTOR_PICTURES;
 
 /// Writes `step-<s>-<picture>.png` for each step of episode `number` whose pictures were
 /// logged, and `episode.json` (the episode and its steps); returns the files written.

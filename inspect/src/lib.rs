@@ -16,7 +16,7 @@ use clap::{Args, Subcommand};
 use serde::Serialize;
 
 use run::{EpisodeRow, FileReport, Run, pipeline_stages};
-use runtime::SUCCESS_WINDOW;
+use rundir::SUCCESS_WINDOW;
 
 #[derive(Args)]
 pub struct InspectArgs {

@@ -6,14 +6,14 @@ use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use messages::EpisodeEnd;
 use serde::Serialize;
-use wire::EpisodeEnd;
 
-use runtime::buffer::BufferReport;
-use runtime::config::RunConfig;
-use runtime::record::{ACTOR_STEP, BUFFER_EPISODE, BUFFER_STATS, LEARNER_UPDATE};
-use runtime::record::{StepRecord, UpdateRecord};
-use runtime::{RunDir, SUCCESS_WINDOW, files_with_extension};
+use rundir::BufferReport;
+use rundir::config::RunConfig;
+use rundir::record::{ACTOR_STEP, BUFFER_EPISODE, BUFFER_STATS, LEARNER_UPDATE};
+use rundir::record::{StepRecord, UpdateRecord};
+use rundir::{RunDir, SUCCESS_WINDOW, files_with_extension};
 
 /// Curves are drawn every this many episodes.
 const CURVE_EVERY: usize = 10;

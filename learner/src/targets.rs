@@ -6,7 +6,7 @@
 //! and valuing with another keeps the maximum over thousands of pixels from valuing its own
 //! noise.
 
-use qnet::{ActingNets, Geometry, NetInput, QNets};
+use qnet::{ActingNets, Geometry, NetInput, QNets, RotatedQMaps};
 use sim::Primitive;
 
 use crate::error::LearnerError;

@@ -9,7 +9,7 @@ use learner::{
     Checkpoint, LearningConfig, LrDecay, Manifest, NextState, Sample, SavedNets, TrainedNet,
     Trainer, executed_pixel_loss, outcome_loss,
 };
-use qnet::{Geometry, NetInput, QNetConfig, QNets};
+use qnet::{Geometry, NetInput, QNetConfig, QNets, RotatedQMaps};
 use sim::{Action, Camera, Primitive, ROTATIONS, SimConfig, Tabletop};
 
 /// A net's parameters as bytes, to compare.

@@ -2,7 +2,7 @@
 //! own forward on any other device (a GPU's).
 
 use burn::prelude::*;
-use sim::{Primitive, ROTATIONS};
+use sim::Primitive;
 
 use policy::QMaps;
 
@@ -12,6 +12,7 @@ use crate::geometry::Geometry;
 use crate::inference::Inference;
 use crate::input::NetInput;
 use crate::qnets::QNets;
+use crate::rotations::RotatedQMaps;
 
 /// (Both boxed: the two are large and of different sizes.)
 #[derive(Clone, Debug)]
@@ -34,25 +35,13 @@ impl ActingNets {
             }))
         })
     }
+}
 
-    /// Q maps of one primitive for all rotations.
-    pub fn all_rotations(
-        &self,
-        primitive: Primitive,
-        input: &NetInput,
-        geometry: &Geometry,
-    ) -> Result<QMaps, QNetError> {
-        match self {
-            ActingNets::Cpu(inference) => inference.all_rotations(primitive, input, geometry),
-            ActingNets::Device(nets) => nets.all_rotations(primitive, input, geometry),
-        }
-    }
-
-    /// Q maps of each of `primitives` for all rotations, for each of `inputs` (several
-    /// environments' at one decision), as one batch: in the CPU's inference form every input
-    /// rotation of every input spread over the cores together, each computed once for all
-    /// the primitives; on a device one forward pass of each net over them all.
-    pub fn all_rotations_of_each<const N: usize>(
+/// In the CPU's inference form every input rotation of every input spread over the cores
+/// together, each computed once for all the primitives; on a device one forward pass of each
+/// net over them all.
+impl RotatedQMaps for ActingNets {
+    fn all_rotations_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
         inputs: &[&NetInput],
@@ -66,8 +55,7 @@ impl ActingNets {
         }
     }
 
-    /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
-    pub fn rotations(
+    fn rotations(
         &self,
         primitive: Primitive,
         input: &NetInput,
@@ -81,25 +69,4 @@ impl ActingNets {
             ActingNets::Device(nets) => nets.rotations(primitive, input, rotations, geometry),
         }
     }
-}
-
-/// Every rotation, in order.
-pub(crate) fn every_rotation() -> Vec<u8> {
-    (0..ROTATIONS).collect()
-}
-
-/// One primitive's maps of every rotation, one `side x side` map after another, as [`QMaps`].
-pub(crate) fn q_maps(geometry: &Geometry, values: Vec<f32>) -> Result<QMaps, QNetError> {
-    Ok(QMaps::new(ROTATIONS, geometry.side(), values)?)
-}
-
-/// `items` through `f`, stopping at the first error (arrays' own `try_map` is unstable).
-pub(crate) fn try_map<A, B, const N: usize>(
-    items: [A; N],
-    f: impl FnMut(A) -> Result<B, QNetError>,
-) -> Result<[B; N], QNetError> {
-    let all: Vec<B> = items.into_iter().map(f).collect::<Result<_, _>>()?;
-    Ok(all
-        .try_into()
-        .unwrap_or_else(|_| unreachable!("as many out as in")))
 }

@@ -58,7 +58,7 @@ mod tests {
     use super::*;
     use crate::geometry::Geometry;
     use crate::testing::{assert_close, patterned_input};
-    use crate::{QNetConfig, QNets};
+    use crate::{QNetConfig, QNets, RotatedQMaps};
 
     /// Every float tensor of a module's values and shape, in visiting order.
     #[derive(Default)]

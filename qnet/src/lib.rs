@@ -26,6 +26,7 @@ pub mod input;
 pub mod layers;
 pub mod net;
 pub mod qnets;
+pub mod rotations;
 
 pub use acting::ActingNets;
 pub use agreement::Difference;
@@ -40,6 +41,7 @@ pub use input::NetInput;
 pub use layers::NetLayers;
 pub use net::PrimitiveNet;
 pub use qnets::QNets;
+pub use rotations::RotatedQMaps;
 
 /// What the unit tests share.
 #[cfg(test)]

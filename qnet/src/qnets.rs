@@ -13,7 +13,6 @@ use sim::Primitive;
 
 use policy::QMaps;
 
-use crate::acting::{every_rotation, q_maps, try_map};
 use crate::config::QNetConfig;
 use crate::equivariant;
 use crate::error::QNetError;
@@ -21,6 +20,7 @@ use crate::geometry::Geometry;
 use crate::host_copy::copied_to;
 use crate::input::NetInput;
 use crate::net::PrimitiveNet;
+use crate::rotations::{RotatedQMaps, every_rotation, q_maps, try_map};
 
 /// The push and the grasp Q-networks.
 #[derive(Module, Debug)]
@@ -218,23 +218,46 @@ impl QNets {
         Ok((low, turns))
     }
 
-    /// Q maps of one primitive for all rotations, as the actor's plain arrays.
-    pub fn all_rotations(
-        &self,
-        primitive: Primitive,
-        input: &NetInput,
-        geometry: &Geometry,
-    ) -> Result<QMaps, QNetError> {
-        let values = self.rotations(primitive, input, &every_rotation(), geometry)?;
-        q_maps(geometry, values)
+    /// The weights of both nets as bytes (burn's burnpack format), for checkpoints and for
+    /// broadcasting to actors. Nets on a GPU are first read to the CPU in one transfer.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, QNetError> {
+        let host = Device::flex();
+        let nets = if self.device().without_autodiff() == host {
+            self.clone()
+        } else {
+            copied_to(self, &host)
+        };
+        let bytes = nets
+            .into_record()
+            .into_bytes()
+            .map_err(|e| QNetError::Weights(e.to_string()))?;
+        Ok(bytes.to_vec())
     }
 
-    /// Q maps of each of `primitives` for all rotations, for each of `inputs` (several
-    /// environments' at one decision): one forward pass of each net over every rotation of
-    /// every input, and their maps read back together once every pass is queued (on a GPU
-    /// one wait, not one a net, and the first net's pass runs while the host issues the
-    /// next's).
-    pub fn all_rotations_of_each<const N: usize>(
+    /// These nets with the weights from `bytes` (made by [`QNets::to_bytes`] for nets of the
+    /// same configuration).
+    pub fn load_bytes(self, bytes: &[u8]) -> Result<Self, QNetError> {
+        let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(bytes.to_vec()))
+            .map_err(|e| QNetError::Weights(e.to_string()))?;
+        self.try_load_record(record).map_err(|e| {
+            let why = e.to_string();
+            // Nets saved before the convolutions ahead of a batch norm lost their biases.
+            let hint = if why.contains("conv.bias") {
+                " (saved by an older pushgrasp, whose convolutions before a batch norm had \
+                 biases; these nets have none: train them again)"
+            } else {
+                ""
+            };
+            QNetError::Weights(format!("{why}{hint}"))
+        })
+    }
+}
+
+/// One forward pass of each net over every rotation of every input, and their maps read back
+/// together once every pass is queued (on a GPU one wait, not one a net, and the first net's
+/// pass runs while the host issues the next's).
+impl RotatedQMaps for QNets {
+    fn all_rotations_of_each<const N: usize>(
         &self,
         primitives: [Primitive; N],
         inputs: &[&NetInput],
@@ -271,8 +294,7 @@ impl QNets {
             .collect())
     }
 
-    /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
-    pub fn rotations(
+    fn rotations(
         &self,
         primitive: Primitive,
         input: &NetInput,
@@ -285,40 +307,6 @@ impl QNets {
             .into_data()
             .try_to_vec::<f32>()
             .expect("Q maps are f32"))
-    }
-
-    /// The weights of both nets as bytes (burn's burnpack format), for checkpoints and for
-    /// broadcasting to actors. Nets on a GPU are first read to the CPU in one transfer.
-    pub fn to_bytes(&self) -> Result<Vec<u8>, QNetError> {
-        let host = Device::flex();
-        let nets = if self.device().without_autodiff() == host {
-            self.clone()
-        } else {
-            copied_to(self, &host)
-        };
-        let bytes = nets
-            .into_record()
-            .into_bytes()
-            .map_err(|e| QNetError::Weights(e.to_string()))?;
-        Ok(bytes.to_vec())
-    }
-
-    /// These nets with the weights from `bytes` (made by [`QNets::to_bytes`] for nets of the
-    /// same configuration).
-    pub fn load_bytes(self, bytes: &[u8]) -> Result<Self, QNetError> {
-        let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(bytes.to_vec()))
-            .map_err(|e| QNetError::Weights(e.to_string()))?;
-        self.try_load_record(record).map_err(|e| {
-            let why = e.to_string();
-            // Nets saved before the convolutions ahead of a batch norm lost their biases.
-            let hint = if why.contains("conv.bias") {
-                " (saved by an older pushgrasp, whose convolutions before a batch norm had \
-                 biases; these nets have none: train them again)"
-            } else {
-                ""
-            };
-            QNetError::Weights(format!("{why}{hint}"))
-        })
     }
 }
 

@@ -5,7 +5,7 @@
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use qnet::{Difference, Geometry, Inference, NetInput, QNetConfig, QNets};
+use qnet::{Difference, Geometry, Inference, NetInput, QNetConfig, QNets, RotatedQMaps};
 use sim::{Camera, Primitive, SimConfig, Tabletop};
 
 fn scene_input(pixel_size: f32, goal: u8) -> NetInput {

@@ -2,7 +2,7 @@
 
 use burn::module::Module;
 use burn::prelude::*;
-use qnet::{Geometry, NetInput, QNetConfig, QNets};
+use qnet::{Geometry, NetInput, QNetConfig, QNets, RotatedQMaps};
 use sim::{Camera, Primitive, SimConfig, Tabletop};
 
 fn scene_input(goal: u8) -> NetInput {

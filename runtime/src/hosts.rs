@@ -6,12 +6,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Result, bail};
-use bridge::{Admission, Central, Endpoint, HostNews, HostReport, RunSecret};
+use bridge::{Admission, Central, Endpoint, HostNews, RunSecret};
+use rundir::HostReport;
 use wire::Transport;
 
-use crate::config::RunConfig;
-use crate::run_dir::RunDir;
 use crate::supervisor::Supervisor;
+use rundir::config::RunConfig;
+use rundir::run_dir::RunDir;
 
 /// How long joined hosts may take to stop their actors and send their last steps.
 const HOSTS_STOP_TIMEOUT: Duration = Duration::from_secs(120);

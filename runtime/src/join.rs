@@ -17,19 +17,19 @@ use anyhow::{Context, Result, bail};
 use bridge::host::UpReport;
 use bridge::{Endpoint, HostBridge, JoinRequest, Keys, RunSecret};
 use clap::Args;
-use serde::Serialize;
 use wire::{Inbox, Outbox, Role, Topic, Transport};
 
 use crate::actor::ActorId;
-use crate::config::RunConfig;
 use crate::launch::open_launch;
 use crate::machine::{Allowance, Demand};
+use crate::process_log::open_log;
 use crate::progress::Watch;
-use crate::role::{RoleId, open_log};
-use crate::run_dir::RunDir;
+use crate::role::RoleId;
 use crate::signals::Signals;
-use crate::supervisor::{Fault, Supervisor, Wiring};
-use crate::write_json;
+use crate::supervisor::{Supervisor, Wiring};
+use rundir::config::RunConfig;
+use rundir::run_dir::RunDir;
+use rundir::{HostSummary, write_json};
 
 #[derive(Args)]
 pub struct JoinArgs {
@@ -55,31 +55,6 @@ pub struct JoinArgs {
     /// Seconds the central host may be gone before this host stops its actors and exits.
     #[arg(long, default_value_t = 60.0)]
     pub give_up_after_s: f64,
-}
-
-/// What a joined host did (`reports/host.json` in its directory).
-#[derive(Debug, Serialize)]
-pub struct HostSummary {
-    pub run_id: String,
-    pub host: String,
-    pub first_actor: u32,
-    pub actors: u32,
-    pub incarnation: u32,
-    /// Steps and episode ends sent to the central host.
-    pub messages_sent: u64,
-    pub parcels_sent: u64,
-    /// Parcels sent again because the link dropped before the central host took them.
-    pub parcels_resent: u64,
-    /// Bytes before and after compression.
-    pub raw_bytes: u64,
-    pub sent_bytes: u64,
-    /// Messages thrown away because the central host was gone for good.
-    pub abandoned: u64,
-    pub actor_restarts: u32,
-    /// Its actors that failed (crashed, or hung and killed), in order.
-    pub faults: Vec<Fault>,
-    /// Why it stopped.
-    pub ended: String,
 }
 
 /// Why the host stops.

@@ -13,21 +13,20 @@ use clap::Args;
 use mcaplog::LogLevel;
 use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, ShmLimits, Topic, Transport};
 
-use crate::actor::{ActorId, ActorReport};
-use crate::backend::{self, Backend};
-use crate::buffer::BufferReport;
-use crate::config::RunConfig;
+use crate::actor::ActorId;
 use crate::hosts::HostLink;
-use crate::learner::LearnerReport;
 use crate::machine::{Allowance, Demand};
-use crate::progress::{Display, Summary, Watch, percent};
-use crate::record::LAUNCHER_SUMMARY;
-use crate::role::{RoleId, open_log};
-use crate::run_dir::RunDir;
-use crate::settings::{load_with, merge, parse_setting};
+use crate::process_log::open_log;
+use crate::progress::{Display, Watch};
+use crate::role::RoleId;
 use crate::signals::Signals;
 use crate::supervisor::{RESUME_HINT, Supervisor, Wiring};
-use crate::{read_json, write_json};
+use rundir::backend::{self, Backend};
+use rundir::config::RunConfig;
+use rundir::record::LAUNCHER_SUMMARY;
+use rundir::run_dir::RunDir;
+use rundir::settings::{load_with, merge, parse_setting};
+use rundir::{ActorReport, BufferReport, LearnerReport, Summary, percent, read_json, write_json};
 
 /// How long the buffer may take to start listening.
 const START_TIMEOUT: Duration = Duration::from_secs(60);

@@ -7,7 +7,7 @@ use anyhow::{Result, bail};
 use qnet::{Backend, QNets};
 use wire::{LargestMessages, ShmFootprint, ShmLimits};
 
-use crate::config::RunConfig;
+use rundir::config::RunConfig;
 
 /// Files the busiest process (the launcher: it reads every process's status and orders
 /// every process) holds open: its own, and per process of the run (measured: 58 with 11
@@ -180,7 +180,7 @@ impl Allowance {
             open_files: rlimit(libc::RLIMIT_NOFILE).unwrap_or((u64::MAX, u64::MAX)),
             threads_left: threads_left(),
             cores: std::thread::available_parallelism().map_or(1, |n| n.get() as u64),
-            memory: crate::config::available_memory(),
+            memory: rundir::config::available_memory(),
         }
     }
 }

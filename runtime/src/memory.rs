@@ -13,8 +13,8 @@ use anyhow::Result;
 use mcaplog::RunLog;
 use serde::{Deserialize, Serialize};
 
-use crate::record::PROCESS_MEMORY;
 use crate::stopwatch::status_mb;
+use rundir::record::PROCESS_MEMORY;
 
 /// How often a process logs its memory.
 pub const MEMORY_EVERY: Duration = Duration::from_secs(10);

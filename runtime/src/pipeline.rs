@@ -14,11 +14,11 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use serde::Deserialize;
 
-use crate::backend::{self, Backend};
-use crate::config::RunConfig;
-use crate::progress::{Summary, percent};
-use crate::run_dir::RunDir;
-use crate::settings::{load_with, merge, parse_setting};
+use rundir::backend::{self, Backend};
+use rundir::config::RunConfig;
+use rundir::run_dir::RunDir;
+use rundir::settings::{load_with, merge, parse_setting};
+use rundir::{Summary, percent};
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -219,9 +219,9 @@ mod tests {
     #[test]
     fn the_shipped_pipelines_resolve_to_valid_stage_configs() {
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
-        let mut files = crate::files_with_extension(&configs.join("ablations"), "toml").unwrap();
+        let mut files = rundir::files_with_extension(&configs.join("ablations"), "toml").unwrap();
         files.extend(
-            crate::files_with_extension(&configs, "toml")
+            rundir::files_with_extension(&configs, "toml")
                 .unwrap()
                 .into_iter()
                 .filter(|f| {

@@ -11,8 +11,8 @@ use learner::checkpoint::config_hash;
 use learner::{Checkpoint, Manifest, PretrainConfig, SavedNets};
 use qnet::QNets;
 
-use crate::backend;
-use crate::config::RunConfig;
+use rundir::backend;
+use rundir::config::RunConfig;
 
 #[derive(Args)]
 pub struct PretrainArgs {

@@ -2,7 +2,6 @@
 //! buffer, the learner, or one incarnation of an actor index), what a role process runs
 //! ([`run_role`]), and the entry of a child process (`pushgrasp role`).
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -10,14 +9,16 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use mcaplog::{LogLevel, RunLog};
+use mcaplog::LogLevel;
 use wire::{Message, Outbox, Role, Status, Topic, Transport};
 
+use crate::Lifeline;
 use crate::actor::ActorId;
-use crate::config::RunConfig;
 use crate::memory::sampling_memory;
-use crate::run_dir::RunDir;
-use crate::{Lifeline, write_json};
+use crate::process_log::open_log;
+use rundir::config::RunConfig;
+use rundir::run_dir::RunDir;
+use rundir::write_json;
 
 /// One role of a run: its kind ([`Role`]) and which one: an actor's index and incarnation,
 /// the buffer's or the learner's incarnation (0, then one more for each restart).
@@ -157,31 +158,6 @@ pub fn run_role(
         }
     }
     result
-}
-
-/// Passes a role's warning on to the launcher, which prints it, and into the role's log.
-pub fn warn(status: &mut Outbox, log: &RunLog, role: Role, warning: String) -> Result<()> {
-    log.log_line(LogLevel::Warning, &warning)?;
-    status.send(&Message::Status(Status::Warning { role, warning }))?;
-    Ok(())
-}
-
-/// A process's MCAP log in the run directory, opened with the run's resolved config.
-pub fn open_log(dir: &RunDir, name: &str, config: &RunConfig) -> Result<RunLog> {
-    if !config.logging.enabled {
-        return Ok(RunLog::disabled(name));
-    }
-    let minutes = config.logging.segment_minutes;
-    let options = mcaplog::Options {
-        segment_every: (minutes > 0.0).then(|| Duration::from_secs_f64(minutes * 60.0)),
-        ..mcaplog::Options::default()
-    };
-    // A log of this name in the run's directory is an earlier process's of the same run (a
-    // resumed run's launcher, buffer and learner): it is kept, and this one goes on after it.
-    let log = RunLog::continue_with(dir.mcap(name), name, options)?;
-    let config = BTreeMap::from([("toml".to_string(), toml::to_string(config)?)]);
-    log.metadata("config", &config)?;
-    Ok(log)
 }
 
 /// `pushgrasp role`: one role of a run, started by the launcher (not by hand).

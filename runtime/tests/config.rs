@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use learner::TrainedNet;
-use runtime::config::*;
+use rundir::config::*;
 use sim::Rows;
 
 #[test]

@@ -26,7 +26,7 @@ use sim::{
 };
 
 use crate::rows::RowArgs;
-use eval::{load_agent, named_arrangements};
+use rundir::{load_agent, named_arrangements};
 use sim::MaskShape;
 
 /// Margins (metres) of `[policy] grasp_margin` at which the success of the grasps the

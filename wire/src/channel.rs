@@ -168,8 +168,8 @@ impl Drop for ChannelSubscriber {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::message::{Control, Message, Role};
     use crate::transport::{Inbox, Outbox};
+    use messages::{Control, Message, Role};
 
     fn stop(role: Role) -> Message {
         Message::Control(Control::Stop(role))
@@ -249,7 +249,7 @@ mod tests {
         let transport = ChannelTransport::new();
         let mut inbox = Inbox::open(&transport, Topic::Steps).unwrap();
         let mut bytes = Vec::new();
-        crate::codec::encode_with_version(&stop(Role::Actor), 99, &mut bytes);
+        messages::codec::encode_with_version(&stop(Role::Actor), 99, &mut bytes);
         Outbox::open(&transport, Topic::Steps)
             .unwrap()
             .send_raw(&bytes)

@@ -1,21 +1,9 @@
-//! What can go wrong on the wire.
+//! What can go wrong on a transport.
 
+use messages::WireError;
 use thiserror::Error;
 
-/// A received message that cannot be used.
-#[derive(Debug, Error, PartialEq, Eq)]
-pub enum WireError {
-    #[error(
-        "a {len}-byte message is not a pushgrasp message (it lacks the 4-byte \"PG\" + version header)"
-    )]
-    NotAMessage { len: usize },
-    #[error(
-        "a message of protocol version {found} arrived; this build speaks version {expected}: every process of a run must come from the same pushgrasp build"
-    )]
-    Version { found: u16, expected: u16 },
-    #[error("a protocol-version-{version} message does not decode: {why}")]
-    Malformed { version: u16, why: String },
-}
+use crate::topic::Topic;
 
 /// A transport that cannot carry a message.
 #[derive(Debug, Error)]
@@ -35,4 +23,14 @@ pub enum TransportError {
     Setup { why: String },
     #[error(transparent)]
     Wire(#[from] WireError),
+}
+
+impl TransportError {
+    /// An iceoryx2 call on `topic` that failed while `what`.
+    pub(crate) fn iceoryx2(topic: Topic, what: &str, e: impl std::fmt::Display) -> Self {
+        TransportError::Backend {
+            topic: topic.name(),
+            why: format!("iceoryx2: {what}: {e}"),
+        }
+    }
 }

@@ -1,4 +1,5 @@
-//! pushgrasp's wire: the messages its roles exchange and the transports that carry them.
+//! pushgrasp's wire: the transports that carry the messages its roles exchange (the
+//! `messages` crate, re-exported here for the roles).
 //!
 //! Actors, the buffer, the learner and the launcher talk only through [`Topic`]s. A
 //! [`Transport`] hands out raw publishers and subscribers for a topic; [`Outbox`] and
@@ -8,19 +9,17 @@
 //! starts with the protocol version; a message of another version is refused, never guessed at.
 
 pub mod channel;
-pub mod codec;
 pub mod error;
-pub mod message;
 pub mod shm;
 pub mod topic;
 pub mod transport;
 
 pub use channel::ChannelTransport;
-pub use codec::{PROTOCOL_VERSION, decode, encode_into};
-pub use error::{TransportError, WireError};
-pub use message::{
-    BatchMessage, Control, EpisodeEnd, Message, Origin, PriorityUpdate, Role, SampleRequest,
-    Status, Step, Weights, largest_step,
+pub use error::TransportError;
+// The messages, for the roles that send them over these transports.
+pub use messages::{
+    BatchMessage, Control, EpisodeEnd, Message, Origin, PROTOCOL_VERSION, PriorityUpdate, Role,
+    SampleRequest, Status, Step, Weights, WireError, decode, encode_into, largest_step,
 };
 pub use shm::{
     LargestMessages, MAX_RUN_ID, SHM_PREFIX_VAR, ShmFootprint, ShmLimits, ShmTransport,

@@ -2,10 +2,9 @@
 
 use std::time::Duration;
 
-use crate::codec::{decode, encode_into};
 use crate::error::TransportError;
-use crate::message::Message;
 use crate::topic::Topic;
+use messages::{Message, decode, encode_into};
 
 /// Hands out the two ends of a topic. Ends are made in the thread that uses them.
 pub trait Transport {

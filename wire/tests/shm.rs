@@ -12,7 +12,7 @@ use iceoryx2::prelude::{CallbackProgression, Config, MessagingPattern, Node, Ser
 use iceoryx2::service::Service;
 use wire::{
     Control, Inbox, LargestMessages, Message, Outbox, Role, ShmLimits, ShmTransport, Topic,
-    Transport, Weights, codec,
+    Transport, Weights,
 };
 
 const ROLE: &str = "PUSHGRASP_SHM_TEST_ROLE";
@@ -348,7 +348,7 @@ fn another_protocol_version_is_refused_across_processes() {
     if let Some((_, run, _)) = helper_role() {
         let transport = ShmTransport::new(&run, "old-actor", LIMITS).unwrap();
         let mut bytes = Vec::new();
-        codec::encode_with_version(&Message::Control(Control::Snapshot), 99, &mut bytes);
+        messages::codec::encode_with_version(&Message::Control(Control::Snapshot), 99, &mut bytes);
         let mut outbox = Outbox::open(&transport, Topic::Steps).unwrap();
         outbox.send_raw(&bytes).unwrap();
         say_ready();

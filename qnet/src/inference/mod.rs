@@ -20,13 +20,13 @@ use sim::Primitive;
 
 use policy::QMaps;
 
-use crate::acting::{every_rotation, q_maps, try_map};
 use crate::equivariant;
 use crate::error::QNetError;
 use crate::geometry::Geometry;
 use crate::input::NetInput;
 use crate::net::{PrimitiveNet, Trunk};
 use crate::qnets::QNets;
+use crate::rotations::{RotatedQMaps, every_rotation, q_maps, try_map};
 use conv::{FoldedConv, Scratch, norm_affine};
 pub(crate) use conv::{even_padding, values};
 
@@ -85,59 +85,7 @@ impl Inference {
         }
     }
 
-    /// Q maps of one primitive for all rotations, as [`QNets::all_rotations`] gives them.
-    pub fn all_rotations(
-        &self,
-        primitive: Primitive,
-        input: &NetInput,
-        geometry: &Geometry,
-    ) -> Result<QMaps, QNetError> {
-        let [maps] = self.all_rotations_of([primitive], input, geometry)?;
-        Ok(maps)
-    }
-
-    /// Q maps of each of `primitives` for all rotations, as [`Inference::all_rotations`]
-    /// gives them one at a time. Each input rotation is computed once for all of them: an
-    /// actor that pushes scores both nets on every decision.
-    pub fn all_rotations_of<const N: usize>(
-        &self,
-        primitives: [Primitive; N],
-        input: &NetInput,
-        geometry: &Geometry,
-    ) -> Result<[QMaps; N], QNetError> {
-        let mut maps = self.all_rotations_of_each(primitives, &[input], geometry)?;
-        Ok(maps.pop().expect("one input, one set of maps"))
-    }
-
-    /// [`Inference::all_rotations_of`] for each of `inputs`, as one batch: the passes of
-    /// every input's rotations share the cores, so that several environments' decisions
-    /// keep them busy where one alone has fewer passes than cores or ends unevenly.
-    pub fn all_rotations_of_each<const N: usize>(
-        &self,
-        primitives: [Primitive; N],
-        inputs: &[&NetInput],
-        geometry: &Geometry,
-    ) -> Result<Vec<[QMaps; N]>, QNetError> {
-        self.rotations_of_each(primitives, inputs, &every_rotation(), geometry)?
-            .into_iter()
-            .map(|values| try_map(values, |values| q_maps(geometry, values)))
-            .collect()
-    }
-
-    /// The Q maps of one primitive at `rotations`, one `side x side` map after another.
-    pub fn rotations(
-        &self,
-        primitive: Primitive,
-        input: &NetInput,
-        rotations: &[u8],
-        geometry: &Geometry,
-    ) -> Result<Vec<f32>, QNetError> {
-        let mut values = self.rotations_of_each([primitive], &[input], rotations, geometry)?;
-        let [values] = values.pop().expect("one input, one set of maps");
-        Ok(values)
-    }
-
-    /// [`Inference::rotations`] of each of `primitives` for each of `inputs`: every input
+    /// [`RotatedQMaps::rotations`] of each of `primitives` for each of `inputs`: every input
     /// rotation they need computed once and run through each of their nets.
     fn rotations_of_each<const N: usize>(
         &self,
@@ -243,6 +191,35 @@ impl Inference {
                 });
             });
         maps
+    }
+}
+
+/// Every input rotation of every input is computed once for all the primitives, and the
+/// passes share the cores, so that several environments' decisions keep them busy where one
+/// alone has fewer passes than cores or ends unevenly.
+impl RotatedQMaps for Inference {
+    fn all_rotations_of_each<const N: usize>(
+        &self,
+        primitives: [Primitive; N],
+        inputs: &[&NetInput],
+        geometry: &Geometry,
+    ) -> Result<Vec<[QMaps; N]>, QNetError> {
+        self.rotations_of_each(primitives, inputs, &every_rotation(), geometry)?
+            .into_iter()
+            .map(|values| try_map(values, |values| q_maps(geometry, values)))
+            .collect()
+    }
+
+    fn rotations(
+        &self,
+        primitive: Primitive,
+        input: &NetInput,
+        rotations: &[u8],
+        geometry: &Geometry,
+    ) -> Result<Vec<f32>, QNetError> {
+        let mut values = self.rotations_of_each([primitive], &[input], rotations, geometry)?;
+        let [values] = values.pop().expect("one input, one set of maps");
+        Ok(values)
     }
 }
 

@@ -23,12 +23,13 @@ use sim::measure::detect_change;
 use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
 use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weights};
 
-use crate::backend::open_device;
-use crate::config::RunConfig;
 use crate::stopwatch::{Stopwatch, status_mb};
 use crate::{Lifeline, stop_requested};
 use heartbeat::Heartbeat;
 use pictures::log_pictures;
+use rundir::ActorReport;
+use rundir::backend::open_device;
+use rundir::config::RunConfig;
 use ship::{Shipper, Stream, Unlabelled};
 
 /// Which actor this is: its index in the run and how many times that index was started.
@@ -60,33 +61,6 @@ impl ActorId {
 
 /// Set in the counter part of a trial grasp's episode id.
 const TRIAL_BIT: u64 = 1 << 31;
-
-/// What an actor did, written to the run directory when it stops.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ActorReport {
-    pub actor: u32,
-    pub incarnation: u32,
-    pub episodes: u64,
-    pub actions: u64,
-    /// Steps shipped to the buffer (episode ends not counted).
-    pub steps_sent: u64,
-    pub goal_grasps: u64,
-    /// Grasps tried on copies of the scene (`grasp_trials`), not counted in `actions`.
-    #[serde(default)]
-    pub trials: u64,
-    pub weights_version: u64,
-    /// Seconds from the first weights received to the stop: the time `actions` took.
-    pub acting_s: f64,
-    /// CPU seconds the actor's process used over `acting_s`, all its threads, split evenly
-    /// among its environments (none for an actor in a thread of the launcher, whose process
-    /// the other roles share).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub cpu_s: Option<f64>,
-    /// The peak resident memory of the actor's process in MB, split evenly among its
-    /// environments (none in a thread of the launcher).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub peak_rss_mb: Option<f64>,
-}
 
 /// Runs its environments' episodes until the launcher says stop (or the launcher is gone);
 /// returns what each did. `first`: the process's first environment (the others follow it,

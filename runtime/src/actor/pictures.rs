@@ -6,7 +6,7 @@ use mcaplog::RunLog;
 use policy::QMaps;
 use sim::{Heightmaps, Tabletop};
 
-use crate::record::{ACTOR_COLOUR, ACTOR_GRASP_Q, ACTOR_HEIGHT, ACTOR_PUSH_Q, ACTOR_SCENE};
+use rundir::record::{ACTOR_COLOUR, ACTOR_GRASP_Q, ACTOR_HEIGHT, ACTOR_PUSH_Q, ACTOR_SCENE};
 
 /// What the actor saw and the scene it acted on, all at one time, which is returned: colour,
 /// height (tenths of a millimetre) and the best grasp and push Q over the rotations

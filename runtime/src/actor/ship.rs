@@ -11,8 +11,8 @@ use sim::Primitive;
 use wire::{EpisodeEnd, Message, Origin, Outbox, Step};
 
 use super::heartbeat::Heartbeat;
-use crate::config::RunConfig;
-use crate::record::{ACTOR_EPISODE, ACTOR_STEP, EpisodeRecord, StepRecord};
+use rundir::config::RunConfig;
+use rundir::record::{ACTOR_EPISODE, ACTOR_STEP, EpisodeRecord, StepRecord};
 
 /// A step waiting for the next decision.
 pub(super) struct Unlabelled {

@@ -17,11 +17,11 @@ use anyhow::{Result, bail};
 use mcaplog::{LogLevel, RunLog};
 use wire::{Inbox, Message, Outbox, Role, Topic, Transport};
 
-use crate::config::RunConfig;
-use crate::record::BUFFER_EPISODE;
-use crate::run_dir::{RunDir, previous};
 use crate::{Lifeline, STATUS_EVERY};
-pub use state::{BufferReport, StreamCount};
+use rundir::BufferReport;
+use rundir::config::RunConfig;
+use rundir::record::BUFFER_EPISODE;
+use rundir::run_dir::{RunDir, previous};
 use state::{BufferRole, Orders};
 
 /// How this buffer process starts.
@@ -58,7 +58,7 @@ pub fn run(
     }
     let mut ports = Ports::open(transport, start.incarnation)?;
     if let Some(warning) = warning {
-        crate::role::warn(&mut ports.status, log, Role::Buffer, warning)?;
+        crate::process_log::warn(&mut ports.status, log, Role::Buffer, warning)?;
     }
     // The first report says the buffer listens: the launcher starts actors only then.
     ports.status.send(&Message::Status(role.status()))?;

@@ -18,87 +18,10 @@ use wire::{
     Step,
 };
 
-use crate::actor::ActorReport;
-use crate::config::RunConfig;
-use crate::record::BUFFER_STATS;
-use crate::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
-use crate::{SUCCESS_WINDOW, read_json, write_json};
-
-/// What one actor incarnation's stream delivered.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct StreamCount {
-    pub actor: u32,
-    pub incarnation: u32,
-    /// Steps received (episode ends not counted).
-    pub steps: u64,
-    /// The next sequence number expected.
-    pub next_seq: u64,
-    /// Sequence numbers that never arrived, unexplained (a lossless transport has none).
-    pub missing: u64,
-    /// Sequence numbers lost when the buffer restarted: received by the buffer that died
-    /// after its last snapshot, or in flight to it.
-    #[serde(default)]
-    pub lost_in_restart: u64,
-}
-
-/// The buffer's counters: kept beside the replay snapshot and written as its report.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct BufferReport {
-    pub steps_received: u64,
-    pub episodes: u64,
-    pub goal_grasps: u64,
-    /// Trial grasps' ends (`grasp_trials`): stored and relabelled, not counted in `episodes`.
-    #[serde(default)]
-    pub trials: u64,
-    /// Goal grasp success over the run's first and last 30 episodes.
-    pub success_first30: Option<f64>,
-    pub success_last30: Option<f64>,
-    pub streams: Vec<StreamCount>,
-    /// Every stream's `lost_in_restart`, summed.
-    #[serde(default)]
-    pub lost_in_restarts: u64,
-    /// Per restarted buffer incarnation: the messages lost when it took over (the sum of the
-    /// gaps before each stream's first message to it).
-    #[serde(default)]
-    pub restart_losses: BTreeMap<u32, u64>,
-    pub inserted: u64,
-    pub relabelled: u64,
-    pub sampled: u64,
-    pub priority_updates: u64,
-    pub snapshots: u64,
-    /// The longest a snapshot held the buffer up: the copy it writes in the background
-    /// (or, on request and at the end, the whole write).
-    #[serde(default)]
-    pub snapshot_hold_ms_max: f64,
-}
-
-impl BufferReport {
-    /// Messages that never arrived, unexplained (not lost to a restart of the buffer).
-    pub fn lost(&self) -> u64 {
-        self.streams.iter().map(|s| s.missing).sum()
-    }
-
-    /// Steps that `actors` (the reports of actors that stopped cleanly) sent and this buffer
-    /// never received: the lost end of a stream, which no gap in its sequence numbers shows.
-    /// None when this report has no per-stream counts (a dead buffer's last status). Only
-    /// for a buffer that was never restarted: a restart loses messages it counts apart.
-    pub fn unreceived(&self, actors: &[ActorReport]) -> u64 {
-        if self.streams.is_empty() && self.steps_received > 0 {
-            return 0;
-        }
-        actors
-            .iter()
-            .map(|actor| {
-                let received = self
-                    .streams
-                    .iter()
-                    .find(|s| s.actor == actor.actor && s.incarnation == actor.incarnation)
-                    .map_or(0, |s| s.steps);
-                actor.steps_sent.saturating_sub(received)
-            })
-            .sum()
-    }
-}
+use rundir::config::RunConfig;
+use rundir::record::BUFFER_STATS;
+use rundir::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
+use rundir::{BufferReport, SUCCESS_WINDOW, StreamCount, read_json, write_json};
 
 /// The share of goal grasps among `outcomes`.
 fn success(outcomes: &[bool]) -> Option<f64> {
@@ -441,48 +364,4 @@ struct SavedState {
     report: BufferReport,
     open: Vec<((u32, u32), Vec<u64>)>,
     outcomes: Vec<bool>,
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn sent(actor: u32, incarnation: u32, steps_sent: u64) -> ActorReport {
-        ActorReport {
-            actor,
-            incarnation,
-            steps_sent,
-            ..ActorReport::default()
-        }
-    }
-
-    fn stream(actor: u32, incarnation: u32, steps: u64) -> StreamCount {
-        StreamCount {
-            actor,
-            incarnation,
-            steps,
-            next_seq: steps,
-            ..StreamCount::default()
-        }
-    }
-
-    #[test]
-    fn steps_missing_at_the_end_of_a_stream_are_unreceived() {
-        let report = BufferReport {
-            steps_received: 7,
-            streams: vec![stream(0, 0, 4), stream(1, 1, 3)],
-            ..BufferReport::default()
-        };
-        assert_eq!(report.lost(), 0, "no gap");
-        assert_eq!(report.unreceived(&[sent(0, 0, 4), sent(1, 1, 3)]), 0);
-        // Actor 1's last step, and the only one of an actor whose stream never opened.
-        let actors = [sent(0, 0, 4), sent(1, 1, 4), sent(2, 0, 1)];
-        assert_eq!(report.unreceived(&actors), 2);
-        // A dead buffer's last status has no per-stream counts: nothing can be said.
-        let from_status = BufferReport {
-            steps_received: 7,
-            ..BufferReport::default()
-        };
-        assert_eq!(from_status.unreceived(&actors), 0);
-    }
 }

@@ -16,7 +16,6 @@ use learner::{Checkpoint, Manifest, NextState, Sample, SavedNets, Trainer};
 use mcaplog::{LogLevel, RunLog};
 use policy::{grasp_label, grasp_region, push_label, valid_push_starts};
 use qnet::{Backend, NetInput, QNets};
-use serde::{Deserialize, Serialize};
 use sim::Primitive;
 use wire::{
     BatchMessage, Inbox, Message, Outbox, PriorityUpdate, Role, Status, Topic, Transport, Weights,
@@ -24,73 +23,14 @@ use wire::{
 
 mod requests;
 
-use super::backend::open_device;
-use super::config::RunConfig;
-use super::record::{LEARNER_UPDATE, UpdateRecord};
-use super::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
 use super::stopwatch::Stopwatch;
-use super::{Lifeline, STATUS_EVERY, stop_requested};
+use crate::{Lifeline, STATUS_EVERY, stop_requested};
 use requests::Requests;
-
-/// What the learner did, written to the run directory when it stops.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct LearnerReport {
-    /// Updates in the whole run (a resumed run counts on from its checkpoint).
-    pub updates: u64,
-    pub weights_version: u64,
-    pub checkpoints: u64,
-    pub last_loss: Option<f32>,
-    /// Updates this process took and the seconds from its first batch to the stop.
-    pub session_updates: u64,
-    pub training_s: f64,
-    /// Seconds of `training_s` spent on updates: the step, sending its priorities,
-    /// publishing and checkpointing. The rest the learner waited for batches, which the
-    /// buffer holds back while the actors have not caught up (the rate limiter). Near
-    /// `training_s`, the learner set the run's pace; `session_updates / busy_s` is its own,
-    /// whatever the actors do.
-    #[serde(default)]
-    pub busy_s: f64,
-    /// CPU seconds the learner's process used over `training_s`, all its threads (none for a
-    /// learner in a thread of the launcher, whose process the other roles share).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub cpu_s: Option<f64>,
-    /// Requests the buffer answered with no items (none of their primitive stored yet).
-    #[serde(default)]
-    pub empty_batches: u64,
-    /// Batches answering a dead predecessor's requests, or requests given up when the
-    /// buffer restarted, skipped.
-    #[serde(default)]
-    pub stale_batches: u64,
-    /// Updates a dead predecessor took after the checkpoint this learner resumed from,
-    /// taken again (its weight versions were published; these updates are not in the nets).
-    #[serde(default)]
-    pub redone_updates: u64,
-    /// Next states this process valued itself (`learning.target_update_every`), not taking
-    /// their actors' values.
-    #[serde(default)]
-    pub learned_next_values: u64,
-    /// Seconds this process spent warming up before its first batch: tuning its kernels on
-    /// a GPU backend, none on the CPU's ([`Trainer::warm_up`]).
-    #[serde(default)]
-    pub warm_up_s: f64,
-}
-
-impl LearnerReport {
-    /// This process's updates per second from its first batch to the stop.
-    pub fn updates_per_s(&self) -> Option<f64> {
-        (self.training_s > 0.0).then(|| self.session_updates as f64 / self.training_s)
-    }
-
-    /// The share of that time it spent on updates rather than waiting for batches.
-    pub fn busy_share(&self) -> Option<f64> {
-        (self.training_s > 0.0).then(|| (self.busy_s / self.training_s).min(1.0))
-    }
-
-    /// Its updates per second of updating: its own pace, whether the actors kept up or not.
-    pub fn updates_per_busy_s(&self) -> Option<f64> {
-        (self.busy_s > 0.0).then(|| self.session_updates as f64 / self.busy_s)
-    }
-}
+use rundir::LearnerReport;
+use rundir::backend::open_device;
+use rundir::config::RunConfig;
+use rundir::record::{LEARNER_UPDATE, UpdateRecord};
+use rundir::run_dir::{RunDir, keep_previous, newest_or_previous, previous};
 
 /// The training sample of a stored transition: its label from reward and `next_value`, the
 /// bootstrap value of its next state (`None` when the scene ended with it).
@@ -140,7 +80,7 @@ pub fn run(
     role.continue_versions(start.weights_after);
     let mut ports = Ports::open(transport)?;
     if let Some(warning) = warning {
-        crate::role::warn(&mut ports.status, log, Role::Learner, warning)?;
+        crate::process_log::warn(&mut ports.status, log, Role::Learner, warning)?;
     }
     role.publish(&mut ports.weights)?;
     // Only a GPU backend tunes its kernels; the CPU's are chosen by shape.

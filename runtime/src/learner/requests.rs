@@ -6,7 +6,7 @@ use std::collections::VecDeque;
 use anyhow::{Result, bail};
 use wire::{BatchMessage, Message, Outbox, SampleRequest};
 
-use crate::config::RunConfig;
+use rundir::config::RunConfig;
 
 const IN_FLIGHT: usize = 2;
 /// The counter bits of a sample request's id (below the learner's incarnation).

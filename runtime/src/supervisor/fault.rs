@@ -2,8 +2,6 @@
 
 use std::path::Path;
 
-use serde::{Deserialize, Serialize};
-
 /// The error a failed role process printed last (its log's last "Error:" paragraph, as
 /// `main` prints an error), with its causes after it on one line, as `{:#}` writes them.
 pub(super) fn last_error(log: &Path) -> Option<String> {
@@ -24,22 +22,6 @@ pub(super) fn last_error(log: &Path) -> Option<String> {
         }
     }
     Some(error)
-}
-
-/// A role that failed during a run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Fault {
-    /// The role's name (`actor-0-1`, `learner`, ...).
-    pub role: String,
-    /// Seconds from the launcher's start to when it noticed.
-    pub at_s: f64,
-    pub cause: String,
-    /// Whether it was started again and the run went on (a joined host: it came back).
-    pub restarted: bool,
-    /// For an actor: the messages of its stream that never reached the buffer (filled in
-    /// from the buffer's counts when the run ends).
-    #[serde(default)]
-    pub lost_messages: Option<u64>,
 }
 
 #[cfg(test)]

@@ -8,18 +8,17 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use mcaplog::{LogLevel, RunLog};
-use serde::{Deserialize, Serialize};
 use wire::{ChannelTransport, Control, Message, Outbox, Role, ShmLimits};
 
+use crate::Lifeline;
 use crate::actor::ActorId;
-use crate::config::RunConfig;
 use crate::role::{RoleId, StartFrom, run_role};
-use crate::run_dir::RunDir;
 use crate::worker::Worker;
-use crate::{Lifeline, write_json};
+use rundir::config::RunConfig;
+use rundir::run_dir::RunDir;
+use rundir::{Fault, ProcessEntry, write_json};
 
 mod fault;
-pub use fault::Fault;
 use fault::last_error;
 
 /// Crashes of one actor index the launcher restarts before it gives up on the run.
@@ -60,13 +59,6 @@ struct Slot {
     started: Instant,
     /// Why the launcher killed it, when it was silent too long.
     hung: Option<String>,
-}
-
-/// The processes file: which process plays which role (for users and tests).
-#[derive(Serialize, Deserialize)]
-pub struct ProcessEntry {
-    pub role: String,
-    pub pid: u32,
 }
 
 pub struct Supervisor {

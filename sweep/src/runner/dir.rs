@@ -17,10 +17,10 @@ use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
 
 use super::plan::Plan;
-use runtime::record::LAUNCHER_PROGRESS;
-use runtime::supervisor::ProcessEntry;
-use runtime::{Progress, RunDir, Summary};
-use runtime::{read_json, write_json};
+use rundir::ProcessEntry;
+use rundir::record::LAUNCHER_PROGRESS;
+use rundir::{Progress, RunDir, Summary};
+use rundir::{read_json, write_json};
 
 /// Where a sweep's runs run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]

@@ -255,7 +255,7 @@ fn outcome(dir: &SweepDir, id: &str, status: ExitStatus, stopped: bool) -> Resul
                 "done"
             },
             summary.buffer.episodes,
-            runtime::progress::percent(summary.buffer.success_last30),
+            rundir::percent(summary.buffer.success_last30),
             summary.wall_s
         ),
         None => format!(

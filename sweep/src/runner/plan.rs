@@ -6,7 +6,7 @@ use std::path::Path;
 use crate::{Axis, RunPlan, Sweep, dry_run_listing};
 use anyhow::{Context, Result, anyhow};
 
-use runtime::config::RunConfig;
+use rundir::config::RunConfig;
 
 /// A loaded sweep and its runs, every one with a valid config.
 pub struct Plan {

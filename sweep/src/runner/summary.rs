@@ -15,7 +15,7 @@ use stats::mean_and_spread;
 
 use super::dir::{RunEntry, RunState, SweepDir};
 use super::table;
-use runtime::SUCCESS_WINDOW;
+use rundir::SUCCESS_WINDOW;
 
 /// A run "reached 80%" at the first episode, from the 30th on, where at least this share of
 /// its last 30 goal grasps succeeded, written as numerator / denominator to compare exactly

@@ -191,7 +191,8 @@ impl ShmTransport {
         topic: Topic,
     ) -> Result<PortFactory<ipc::Service, [u8], ()>, TransportError> {
         let name = service_name(&self.run_id, topic);
-        let name = ServiceName::new(&name).map_err(|e| backend(topic, "the service name", e))?;
+        let name = ServiceName::new(&name)
+            .map_err(|e| TransportError::iceoryx2(topic, "the service name", e))?;
         let lossless = topic.delivery() == Delivery::Lossless;
         self.node
             .service_builder(&name)
@@ -285,13 +286,6 @@ fn check_run_id(run_id: &str) -> Result<(), TransportError> {
     Ok(())
 }
 
-fn backend(topic: Topic, what: &str, e: impl std::fmt::Display) -> TransportError {
-    TransportError::Backend {
-        topic: topic.name(),
-        why: format!("iceoryx2: {what}: {e}"),
-    }
-}
-
 impl Transport for ShmTransport {
     fn publisher(&self, topic: Topic) -> Result<Box<dyn Publisher>, TransportError> {
         let service = self.open_topic(topic)?;
@@ -313,7 +307,7 @@ impl Transport for ShmTransport {
             .create()
             .map_err(|e| {
                 let admitted = self.limits.publishers(topic);
-                backend(topic, &self.ports("publishers", admitted), e)
+                TransportError::iceoryx2(topic, &self.ports("publishers", admitted), e)
             })?;
         Ok(Box::new(ShmPublisher {
             topic,
@@ -326,7 +320,7 @@ impl Transport for ShmTransport {
         let service = self.open_topic(topic)?;
         let subscriber = service.subscriber_builder().create().map_err(|e| {
             let admitted = self.limits.subscribers(topic);
-            backend(topic, &self.ports("subscribers", admitted), e)
+            TransportError::iceoryx2(topic, &self.ports("subscribers", admitted), e)
         })?;
         Ok(Box::new(ShmSubscriber {
             topic,
@@ -368,14 +362,14 @@ impl Subscriber for ShmSubscriber {
     fn refresh(&mut self) -> Result<(), TransportError> {
         self.subscriber
             .update_connections()
-            .map_err(|e| backend(self.topic, "connecting to new publishers", e))
+            .map_err(|e| TransportError::iceoryx2(self.topic, "connecting to new publishers", e))
     }
 
     fn receive(&mut self, sink: &mut dyn FnMut(&[u8])) -> Result<bool, TransportError> {
         match self
             .subscriber
             .receive()
-            .map_err(|e| backend(self.topic, "receiving", e))?
+            .map_err(|e| TransportError::iceoryx2(self.topic, "receiving", e))?
         {
             Some(sample) => {
                 sink(sample.payload());

@@ -10,7 +10,6 @@ use iceoryx2::prelude::PortFactory as _;
 use iceoryx2::prelude::{AllocationStrategy, ipc};
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 
-use super::backend;
 use crate::error::TransportError;
 use crate::topic::{Delivery, Topic};
 use crate::transport::{Publisher, WAITING_EVERY, Waiting};
@@ -56,12 +55,12 @@ impl ShmPublisher {
                 ),
                 _ => "loaning shared memory".into(),
             };
-            backend(self.topic, &what, e)
+            TransportError::iceoryx2(self.topic, &what, e)
         })?;
         sample
             .write_from_slice(bytes)
             .send()
-            .map_err(|e| backend(self.topic, "sending", e))
+            .map_err(|e| TransportError::iceoryx2(self.topic, "sending", e))
     }
 }
 
@@ -93,6 +92,6 @@ impl Publisher for ShmPublisher {
     fn refresh(&mut self) -> Result<(), TransportError> {
         self.publisher
             .update_connections()
-            .map_err(|e| backend(self.topic, "connecting to new subscribers", e))
+            .map_err(|e| TransportError::iceoryx2(self.topic, "connecting to new subscribers", e))
     }
 }

@@ -2,8 +2,11 @@
 //! postcard. The version is read before anything else, so a process of another build is
 //! refused with a clear error rather than misread.
 
+use experience::Transition;
+use sim::{Action, Heightmaps, ObjectId, PixelGrid, Primitive};
+
 use crate::error::WireError;
-use crate::message::Message;
+use crate::message::{Message, Origin, Step};
 
 /// The version of [`Message`]'s encoding; raise it with any change to the messages.
 pub const PROTOCOL_VERSION: u16 = 8;
@@ -43,10 +46,46 @@ pub fn decode(bytes: &[u8]) -> Result<Message, WireError> {
     })
 }
 
+/// The bytes of the largest step an actor sends on `grid`: a step carries one observation
+/// whole, whatever the scene, so any step of the grid encodes to about this.
+pub fn largest_step(grid: PixelGrid) -> usize {
+    let step = Step {
+        origin: Origin {
+            actor: u32::MAX,
+            incarnation: u32::MAX,
+            seq: u64::MAX,
+        },
+        transition: Transition {
+            episode: u64::MAX,
+            step: u32::MAX,
+            goal: ObjectId::MAX,
+            obs: Heightmaps::new(grid),
+            action: Action {
+                primitive: Primitive::Push,
+                rotation: u8::MAX,
+                row: grid.side(),
+                col: grid.side(),
+            },
+            reward: 0.0,
+            grasped: Some(ObjectId::MAX),
+            next_value: Some(0.0),
+            next: None,
+        },
+        priority: 0.0,
+        predicted_q: 0.0,
+        explored: true,
+        weights_version: u64::MAX,
+    };
+    let mut bytes = Vec::new();
+    encode_into(&Message::Step(step), &mut bytes);
+    bytes.len()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::message::{Control, Role};
+    use sim::{Camera, SimConfig, Tabletop};
 
     fn encoded(message: &Message, version: u16) -> Vec<u8> {
         let mut out = Vec::new();
@@ -81,5 +120,50 @@ mod tests {
         let mut bytes = encoded(&Message::Control(Control::Snapshot), PROTOCOL_VERSION);
         bytes.truncate(4);
         assert!(matches!(decode(&bytes), Err(WireError::Malformed { .. })));
+    }
+
+    #[test]
+    fn a_step_of_a_real_scene_is_no_larger_than_the_largest() {
+        let config = SimConfig::default();
+        let grid = config.grid().unwrap();
+        let (tabletop, _) = Tabletop::random(&config, 10, 3).unwrap();
+        let mut step = Step {
+            origin: Origin {
+                actor: 3,
+                incarnation: 1,
+                seq: 812,
+            },
+            transition: Transition {
+                episode: 40,
+                step: 2,
+                goal: 4,
+                obs: Camera::new(grid).render(&tabletop),
+                action: Action {
+                    primitive: Primitive::Grasp,
+                    rotation: 7,
+                    row: 55,
+                    col: 61,
+                },
+                reward: 1.0,
+                grasped: Some(4),
+                next_value: None,
+                next: None,
+            },
+            priority: 0.7,
+            predicted_q: 0.4,
+            explored: false,
+            weights_version: 118,
+        };
+        let mut bytes = Vec::new();
+        encode_into(&Message::Step(step.clone()), &mut bytes);
+        let largest = largest_step(grid);
+        assert!(
+            bytes.len() <= largest && bytes.len() + 64 > largest,
+            "{} {largest}",
+            bytes.len()
+        );
+        step.transition.obs = Heightmaps::new(PixelGrid::new(grid.pixel_size() / 2.0).unwrap());
+        encode_into(&Message::Step(step), &mut bytes);
+        assert!(bytes.len() > 3 * largest, "a finer grid's steps are larger");
     }
 }

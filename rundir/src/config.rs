@@ -382,7 +382,7 @@ pub(crate) fn one_environment() -> u32 {
 }
 
 /// The memory this machine has available now (Linux's MemAvailable), where it says.
-pub(crate) fn available_memory() -> Option<u64> {
+pub fn available_memory() -> Option<u64> {
     let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;

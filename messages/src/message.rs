@@ -3,9 +3,7 @@
 
 use experience::{BatchItem, Key, StoredTransition, Transition};
 use serde::{Deserialize, Serialize};
-use sim::{Action, Heightmaps, ObjectId, PixelGrid, Primitive};
-
-use crate::codec::encode_into;
+use sim::{ObjectId, Primitive};
 
 /// Everything that travels between the roles of a run.
 // A message is made for one send and read once, never kept in bulk: a boxed step would cost
@@ -89,41 +87,6 @@ pub struct Step {
     pub explored: bool,
     /// The weight version the action was chosen with.
     pub weights_version: u64,
-}
-
-/// The bytes of the largest step an actor sends on `grid`: a step carries one observation
-/// whole, whatever the scene, so any step of the grid encodes to about this.
-pub fn largest_step(grid: PixelGrid) -> usize {
-    let step = Step {
-        origin: Origin {
-            actor: u32::MAX,
-            incarnation: u32::MAX,
-            seq: u64::MAX,
-        },
-        transition: Transition {
-            episode: u64::MAX,
-            step: u32::MAX,
-            goal: ObjectId::MAX,
-            obs: Heightmaps::new(grid),
-            action: Action {
-                primitive: Primitive::Push,
-                rotation: u8::MAX,
-                row: grid.side(),
-                col: grid.side(),
-            },
-            reward: 0.0,
-            grasped: Some(ObjectId::MAX),
-            next_value: Some(0.0),
-            next: None,
-        },
-        priority: 0.0,
-        predicted_q: 0.0,
-        explored: true,
-        weights_version: u64::MAX,
-    };
-    let mut bytes = Vec::new();
-    encode_into(&Message::Step(step), &mut bytes);
-    bytes.len()
 }
 
 /// The end of an episode (actor -> buffer): its steps are complete and may be relabelled.
@@ -232,55 +195,4 @@ pub enum Status {
     /// A role goes on, but the person running it should know (the launcher prints it): it
     /// started from a previous generation of its saved state, the newest being damaged.
     Warning { role: Role, warning: String },
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use sim::{Camera, SimConfig, Tabletop};
-
-    #[test]
-    fn a_step_of_a_real_scene_is_no_larger_than_the_largest() {
-        let config = SimConfig::default();
-        let grid = config.grid().unwrap();
-        let (tabletop, _) = Tabletop::random(&config, 10, 3).unwrap();
-        let mut step = Step {
-            origin: Origin {
-                actor: 3,
-                incarnation: 1,
-                seq: 812,
-            },
-            transition: Transition {
-                episode: 40,
-                step: 2,
-                goal: 4,
-                obs: Camera::new(grid).render(&tabletop),
-                action: Action {
-                    primitive: Primitive::Grasp,
-                    rotation: 7,
-                    row: 55,
-                    col: 61,
-                },
-                reward: 1.0,
-                grasped: Some(4),
-                next_value: None,
-                next: None,
-            },
-            priority: 0.7,
-            predicted_q: 0.4,
-            explored: false,
-            weights_version: 118,
-        };
-        let mut bytes = Vec::new();
-        encode_into(&Message::Step(step.clone()), &mut bytes);
-        let largest = largest_step(grid);
-        assert!(
-            bytes.len() <= largest && bytes.len() + 64 > largest,
-            "{} {largest}",
-            bytes.len()
-        );
-        step.transition.obs = Heightmaps::new(PixelGrid::new(grid.pixel_size() / 2.0).unwrap());
-        encode_into(&Message::Step(step), &mut bytes);
-        assert!(bytes.len() > 3 * largest, "a finer grid's steps are larger");
-    }
 }
