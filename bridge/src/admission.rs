@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use rundir::HostReport;
+use rundir::{HostReport, ProcessLayout};
 
 use crate::join::{JoinReply, JoinRequest, Placement};
 
@@ -23,9 +23,9 @@ pub struct Admission {
     /// The environments of the central host's own actors: indices `0..local_actors`; hosts'
     /// come after.
     pub local_actors: u32,
-    /// The run's environments per actor process: a host's `--actors N` take `N` times as
-    /// many indices.
-    pub envs_per_actor: u32,
+    /// How the run's environments fall into actor processes: a host's `--actors N` take
+    /// the environments of `N` processes.
+    pub layout: ProcessLayout,
     /// Where the hosts' places are kept, so a resumed run gives a host the same indices.
     pub hosts_file: PathBuf,
 }
@@ -144,8 +144,8 @@ impl Hosts {
             .values()
             .map(|h| h.report.first_actor + h.report.actors)
             .fold(self.admission.local_actors, u32::max);
-        let envs_per_actor = self.admission.envs_per_actor.max(1);
-        let indices = request.actors * envs_per_actor;
+        let layout = self.admission.layout;
+        let indices = layout.environments(request.actors);
         let host = self
             .hosts
             .entry(request.host.clone())
@@ -164,7 +164,7 @@ impl Hosts {
                 "host {:?} joined this run before with {} actors: join with as many, or under \
                  another --host-name",
                 report.host,
-                report.actors / envs_per_actor
+                layout.processes(report.actors)
             ));
         }
         let placement = Placement {
@@ -203,7 +203,7 @@ mod tests {
             run_id: "r".into(),
             config: "stage = 1".into(),
             local_actors: 2,
-            envs_per_actor: 1,
+            layout: ProcessLayout::new(1),
             hosts_file: dir.join("hosts.json"),
         })
         .unwrap()

@@ -460,7 +460,7 @@ mod tests {
                 run_id: "r".into(),
                 config: String::new(),
                 local_actors: 1,
-                envs_per_actor: 1,
+                layout: rundir::ProcessLayout::new(1),
                 hosts_file: dir.path().join("hosts.json"),
             })
             .unwrap(),

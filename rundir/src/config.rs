@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use sim::{Rows, SimConfig};
 
 use crate::backend::Backends;
+use crate::layout::ProcessLayout;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -325,24 +326,13 @@ impl RunConfig {
 
     /// The environments of the run's actors, here and on joined hosts.
     pub fn environments(&self) -> u32 {
-        (self.actors + self.run.remote_actors) * self.envs_per_actor
+        self.layout()
+            .environments(self.actors + self.run.remote_actors)
     }
 
-    /// The first environment of each of `processes` actor processes whose environments
-    /// start at `from`.
-    pub fn first_environments(
-        &self,
-        from: u32,
-        processes: u32,
-    ) -> impl Iterator<Item = u32> + use<> {
-        let k = self.envs_per_actor;
-        (0..processes).map(move |p| from + p * k)
-    }
-
-    /// The first environment of the actor process that plays `environment` (processes start
-    /// at multiples of `envs_per_actor`, here and on joined hosts).
-    pub fn process_of(&self, environment: u32) -> u32 {
-        environment - environment % self.envs_per_actor.max(1)
+    /// How the run's environments fall into actor processes.
+    pub fn layout(&self) -> ProcessLayout {
+        ProcessLayout::new(self.envs_per_actor)
     }
 
     /// Environment `index`'s exploration rate after it took `actions` actions.

@@ -8,6 +8,7 @@ pub mod agent;
 pub mod backend;
 pub mod config;
 pub mod files;
+pub mod layout;
 pub mod record;
 pub mod reports;
 pub mod run_dir;
@@ -17,6 +18,7 @@ pub mod summary;
 pub use agent::{load_agent, named_arrangements};
 pub use config::RunConfig;
 pub use files::{files_with_extension, read_json, write_json};
+pub use layout::ProcessLayout;
 pub use reports::{
     ActorReport, BufferReport, Fault, HostReport, HostSummary, LearnerReport, ProcessEntry,
     SUCCESS_WINDOW, StreamCount,

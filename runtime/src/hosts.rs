@@ -49,8 +49,8 @@ impl HostLink {
         let admission = Admission {
             run_id: run_id.into(),
             config: toml::to_string(config)?,
-            local_actors: config.actors * config.envs_per_actor,
-            envs_per_actor: config.envs_per_actor,
+            local_actors: config.layout().environments(config.actors),
+            layout: config.layout(),
             hosts_file: dir.hosts_file(),
         };
         Ok(Self {

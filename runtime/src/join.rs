@@ -120,7 +120,8 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         false,
         log,
     );
-    let last = placement.first_actor + args.actors * supervisor.config().envs_per_actor;
+    let layout = supervisor.config().layout();
+    let last = placement.first_actor + layout.environments(args.actors);
     println!(
         "joined run {} at {} as host {host}: actors {}..{last} ({}), logs in {}",
         args.run_id,
@@ -129,10 +130,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         demand.describe(),
         dir.path().display()
     );
-    for first in supervisor
-        .config()
-        .first_environments(placement.first_actor, args.actors)
-    {
+    for first in layout.first_environments(placement.first_actor, args.actors) {
         supervisor.start(RoleId::Actor(ActorId {
             index: first,
             incarnation: placement.incarnation,

@@ -262,7 +262,7 @@ fn lost_in_fault(buffer: &BufferReport, role: &str, config: &RunConfig) -> Optio
         .iter()
         .filter(|s| {
             let process = ActorId {
-                index: config.process_of(s.actor),
+                index: config.layout().process_of(s.actor),
                 incarnation: s.incarnation,
             };
             RoleId::Actor(process).name() == role
@@ -292,7 +292,7 @@ fn unreceived_steps(supervisor: &Supervisor, buffer: &BufferReport, actors: &[Ac
         .iter()
         .filter(|r| {
             supervisor.started_actor(ActorId {
-                index: config.process_of(r.actor),
+                index: config.layout().process_of(r.actor),
                 incarnation: r.incarnation,
             })
         })
@@ -414,7 +414,7 @@ fn start_roles(
     }
     supervisor.start(RoleId::Learner(0))?;
     let incarnations = supervisor.next_incarnations()?;
-    for first in supervisor.config().first_environments(0, actors) {
+    for first in supervisor.config().layout().first_environments(0, actors) {
         supervisor.start(RoleId::Actor(ActorId {
             index: first,
             incarnation: incarnations.get(&first).copied().unwrap_or(0),
