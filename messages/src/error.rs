@@ -1,4 +1,4 @@
-//! A received message that cannot be used.
+//! What can be wrong with the bytes of a received message.
 
 use thiserror::Error;
 

@@ -18,10 +18,6 @@ impl ProcessLayout {
         }
     }
 
-    pub fn envs_per_process(self) -> u32 {
-        self.envs_per_process
-    }
-
     /// The environments of `processes` actor processes.
     pub fn environments(self, processes: u32) -> u32 {
         processes * self.envs_per_process
@@ -66,6 +62,6 @@ mod tests {
         assert_eq!(layout.process_of(13), 12);
         assert_eq!(layout.process_of(12), 12);
         let one = ProcessLayout::new(0);
-        assert_eq!((one.envs_per_process(), one.process_of(5)), (1, 5));
+        assert_eq!((one.environments(3), one.process_of(5)), (3, 5));
     }
 }

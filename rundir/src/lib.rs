@@ -4,8 +4,8 @@
 //! records, each role's report, the run's progress and summary, and their readers. Nothing
 //! here starts a process or opens a transport, so a reader of runs builds without them.
 
-pub mod agent;
 pub mod backend;
+pub mod checkpoint;
 pub mod config;
 pub mod files;
 pub mod layout;
@@ -15,9 +15,9 @@ pub mod run_dir;
 pub mod settings;
 pub mod summary;
 
-pub use agent::{load_agent, named_arrangements};
+pub use checkpoint::load_agent;
 pub use config::RunConfig;
-pub use files::{files_with_extension, read_json, write_json};
+pub use files::{files_with_extension, named_arrangements, read_json, write_json};
 pub use layout::ProcessLayout;
 pub use reports::{
     ActorReport, BufferReport, Fault, HostReport, HostSummary, LearnerReport, ProcessEntry,
