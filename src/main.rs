@@ -16,8 +16,8 @@ static ALLOCATOR: Cap<MiMalloc> = Cap::new(MiMalloc, usize::MAX);
 /// learner later, an actor at once: [`purge_delay_ms`]) and opts out of transparent huge
 /// pages (its children inherit that). Kept longer in the processes that run the nets (for
 /// good, then a second) on huge pages, each passing peak stayed, in whole 2 MB pages: over
-/// 15-minute soaks an actor and the learner grew 6-14% and were still growing (RESULTS.md,
-/// "Memory over a long run").
+/// 15-minute soaks an actor and the learner grew 6-14% and were still growing
+/// (results/memory-and-faults.md, "Memory over a long run: freed memory kept a second").
 fn hand_back_freed_memory() {
     // SAFETY: prctl with PR_SET_THP_DISABLE reads no memory, it sets a flag of this process.
     // A refusal (an old kernel) leaves huge pages on: nothing to handle.
@@ -85,7 +85,8 @@ const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 /// How long an actor keeps memory it freed: not at all. Its live bytes stay level (12.5-13.2
 /// MB), but at mimalloc's second its arena's resident pages wandered by a few MB between
 /// episodes, past 5% over 15-minute soaks; handed back at once, it stays level too, at the
-/// same actions per second (RESULTS.md, "The actors hand back what they free at once").
+/// same actions per second (results/memory-and-faults.md, "The actors hand back what they free
+/// at once").
 const ACTOR_PURGE_DELAY_MS: std::ffi::c_long = 0;
 
 /// The purge delay this command's process sets, where it is not mimalloc's own: the learner

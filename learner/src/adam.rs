@@ -1,7 +1,7 @@
 //! Adam, one operation a parameter tensor. burn's Adam issues about fifteen tensor operations
 //! for each parameter tensor (weight decay, the two moments, the step). On a GPU burn's fusion
 //! joins them into one kernel but handles every operation on the host first, and the host's
-//! work paces a GPU step (RESULTS.md, "The host's share of a GPU step"). Here a tensor's step
+//! work paces a GPU step (results/gpu.md, "The host's share of a GPU step"). Here a tensor's step
 //! is one operation: on a GPU one CubeCL kernel, which took a sixth off burn's fusion's work a
 //! step; on the CPU, where Adam costs next to nothing, burn's operations composed.
 //!

@@ -30,7 +30,8 @@ pub struct PolicyConfig {
     pub max_pushes: usize,
     /// Grasps stay this far (metres) inside the goal's mask, where the mask is wider than
     /// twice this (else they go to its deepest pixels): in clutter, direct grasps on the
-    /// goal's rim fail most often (RESULTS.md). 0: anywhere on the mask, as the paper.
+    /// goal's rim fail most often (results/archive.md, "Grasps off the goal's rim"). 0:
+    /// anywhere on the mask, as the paper.
     pub grasp_margin: f32,
     /// Exploration rate at iteration 0.
     pub epsilon_start: f32,

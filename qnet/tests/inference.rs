@@ -92,7 +92,8 @@ fn the_inference_form_gives_burns_q_maps_for_the_stage_nets() {
 
 #[test]
 fn the_inference_form_gives_burns_q_maps_with_fused_context_at_224() {
-    // Fused context, and the paper's 2 mm pixels with the dilations RESULTS.md uses there.
+    // Fused context, and the paper's 2 mm pixels with the dilations of results/archive.md,
+    // "Finer heightmaps".
     let config = QNetConfig {
         context_dilations: vec![2, 4],
         fuse_context: true,
