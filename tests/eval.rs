@@ -236,30 +236,43 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let best = case["net_best"].as_f64().unwrap();
     assert!(best == 0.0 || best == 1.0, "{grasps}");
 
-    // The grasp-ranking benchmark on one packed cluster, one try per grasp.
+    // One case: its average is the case itself.
+    assert_eq!(grasps["average"]["net_best"], case["net_best"], "{grasps}");
+    assert_eq!(grasps["net_auc_target"], 0.85, "{grasps}");
+
+    // The grasp ranking on one packed cluster the net never trained on, one try per grasp.
     let ranking: Value = serde_json::from_str(&pushgrasp_ok(&[
-        "bench",
-        "grasp-ranking",
-        "--checkpoint",
-        checkpoint,
-        "--scenes",
+        "scene",
+        "grasps",
+        "--random",
         "1",
+        "--objects",
+        "5",
+        "--row",
+        "4",
+        "--lines",
+        "2",
         "--jitters",
         "1",
+        "--checkpoint",
+        checkpoint,
         "--json",
     ]))
     .unwrap();
-    assert_eq!(ranking["scenes"], 1, "{ranking}");
-    assert!(ranking["auc"].is_null() || (0.0..=1.0).contains(&ranking["auc"].as_f64().unwrap()));
-    let top1 = ranking["top1_success"].as_f64().unwrap();
+    assert_eq!(ranking["cases"].as_array().unwrap().len(), 1, "{ranking}");
+    let average = &ranking["average"];
+    assert!(
+        average["net_auc"].is_null() || (0.0..=1.0).contains(&average["net_auc"].as_f64().unwrap())
+    );
+    let top1 = average["net_best"].as_f64().unwrap();
     assert!(top1 == 0.0 || top1 == 1.0, "{ranking}");
     // The top five grasps, one try each: a count of five.
-    let top5 = ranking["top_k_success"].as_f64().unwrap() * 5.0;
+    let top5 = average["net_top_k"].as_f64().unwrap() * 5.0;
     assert!(
         (top5 - top5.round()).abs() < 1e-9 && (0.0..=5.0).contains(&top5),
         "{ranking}"
     );
-    assert!((0.0..=1.0).contains(&ranking["random_success"].as_f64().unwrap()));
+    assert!((0.0..=1.0).contains(&average["success"].as_f64().unwrap()));
 
     // Nothing to test, and a checkpoint that is not one, are refused with the reason.
     let none = pushgrasp_fails(&["eval", "--checkpoint", checkpoint]);

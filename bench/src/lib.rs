@@ -16,7 +16,6 @@ use sim::{Action, Camera, Heightmaps, Primitive, ROTATIONS, ShapeKind, SimConfig
 use sim::MaskShape;
 
 mod e2e;
-mod grasp_ranking;
 mod hosts;
 mod logging;
 mod peer;
@@ -53,9 +52,6 @@ pub enum BenchCommand {
     /// Memory over a long run: every process's resident memory while a stage-3 run goes on
     /// for 20 minutes after its replay is full, and its growth beside a 5% bound.
     Soak(soak::SoakBenchArgs),
-    /// A checkpoint's grasp net in packed clusters it never trained on: how well its Q ranks
-    /// the goal's grasps that succeed above those that fail, its top grasps against random.
-    GraspRanking(grasp_ranking::GraspRankingArgs),
 }
 
 #[derive(Args)]
@@ -130,7 +126,6 @@ pub fn run(command: BenchCommand) -> Result<()> {
         BenchCommand::Transport(args) => transport::bench_transport(&args),
         BenchCommand::Hosts(args) => hosts::bench_hosts(&args),
         BenchCommand::Soak(args) => soak::bench_soak(&args),
-        BenchCommand::GraspRanking(args) => grasp_ranking::bench_grasp_ranking(&args),
     }
 }
 

@@ -14,7 +14,6 @@ mod pictures;
 mod rows;
 
 pub use episode::{EpisodeArgs, run as episode};
-pub use grasp_map::{GraspRanking, ranking as grasp_ranking};
 use rows::RowArgs;
 
 #[derive(Subcommand)]
