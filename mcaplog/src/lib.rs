@@ -80,6 +80,22 @@ pub enum Error {
 /// Results of this crate.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// An [`Error::Io`] naming `path`.
+pub(crate) fn io_err(path: &std::path::Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// An [`Error::Mcap`] naming `path`.
+pub(crate) fn mcap_err(path: &std::path::Path, source: mcap::McapError) -> Error {
+    Error::Mcap {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
 /// Nanoseconds since the Unix epoch, now.
 pub fn now_ns() -> u64 {
     std::time::SystemTime::now()
