@@ -3,15 +3,18 @@
 //! checkpoints, then the buffer, which takes the last steps and snapshots) when the budget
 //! is reached, on Ctrl-C, or when a role fails more often than it is restarted.
 
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+mod names;
+mod reports;
 
-use anyhow::{Context, Result, anyhow, bail};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
 use bridge::Endpoint;
 use clap::Args;
 use mcaplog::LogLevel;
-use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, ShmLimits, Topic, Transport};
+use wire::{ChannelTransport, Control, Inbox, Message, Outbox, Role, Topic, Transport};
 
 use crate::actor::ActorId;
 use crate::hosts::HostLink;
@@ -26,7 +29,11 @@ use rundir::config::RunConfig;
 use rundir::record::LAUNCHER_SUMMARY;
 use rundir::run_dir::RunDir;
 use rundir::settings::{load_with, merge, parse_setting};
-use rundir::{ActorReport, BufferReport, LearnerReport, Summary, percent, read_json, write_json};
+use rundir::{Summary, write_json};
+
+pub(crate) use names::open_launch;
+use names::{default_run_id, newest_run};
+use reports::{actor_reports, lost_in_fault, print_summary, report_or, unreceived_steps};
 
 /// How long the buffer may take to start listening.
 const START_TIMEOUT: Duration = Duration::from_secs(60);
@@ -243,123 +250,6 @@ fn wiring(threads: bool, run_id: &str, dir: &RunDir, demand: &Demand) -> Result<
     Ok((Wiring::Processes { namespace, limits }, Arc::new(transport)))
 }
 
-/// The report at `path`, or `missing()` when the role wrote none (it died); a report that
-/// cannot be read is an error naming it.
-fn report_or<T: serde::de::DeserializeOwned>(path: &Path, missing: impl Fn() -> T) -> Result<T> {
-    if path.exists() {
-        read_json(path)
-    } else {
-        Ok(missing())
-    }
-}
-
-/// What the buffer counted lost to the fault of role `role`: the gaps in the streams of a
-/// crashed actor process's environments, or what the buffer that took over from a crashed
-/// one found missing.
-fn lost_in_fault(buffer: &BufferReport, role: &str, config: &RunConfig) -> Option<u64> {
-    let streams: Vec<u64> = buffer
-        .streams
-        .iter()
-        .filter(|s| {
-            let process = ActorId {
-                index: config.layout().process_of(s.actor),
-                incarnation: s.incarnation,
-            };
-            RoleId::Actor(process).name() == role
-        })
-        .map(|s| s.missing)
-        .collect();
-    if !streams.is_empty() {
-        return Some(streams.iter().sum());
-    }
-    buffer
-        .restart_losses
-        .iter()
-        .find(|&(&next, _)| next > 0 && RoleId::Buffer(next - 1).name() == role)
-        .map(|(_, &lost)| lost)
-}
-
-/// Steps that the actors this launch started, and stopped in order, sent and the buffer
-/// never received ([`BufferReport::unreceived`]). Not those of a launch before, which may
-/// have ended hung, its roles stopping by themselves in any order; none after a restart of
-/// the buffer, which counts its losses apart.
-fn unreceived_steps(supervisor: &Supervisor, buffer: &BufferReport, actors: &[ActorReport]) -> u64 {
-    if supervisor.buffer() != RoleId::Buffer(0) {
-        return 0;
-    }
-    let config = supervisor.config();
-    let stopped_here: Vec<ActorReport> = actors
-        .iter()
-        .filter(|r| {
-            supervisor.started_actor(ActorId {
-                index: config.layout().process_of(r.actor),
-                incarnation: r.incarnation,
-            })
-        })
-        .cloned()
-        .collect();
-    buffer.unreceived(&stopped_here)
-}
-
-/// The reports of actors that stopped cleanly, in index and incarnation order.
-fn actor_reports(dir: &RunDir) -> Result<Vec<ActorReport>> {
-    let mut reports = Vec::new();
-    for entry in std::fs::read_dir(dir.reports())? {
-        let path = entry?.path();
-        if path
-            .file_name()
-            .is_some_and(|n| n.to_string_lossy().starts_with(Role::Actor.name()))
-        {
-            reports.push(read_json::<ActorReport>(&path)?);
-        }
-    }
-    reports.sort_by_key(|r| (r.actor, r.incarnation));
-    Ok(reports)
-}
-
-fn print_summary(summary: &Summary, dir: &RunDir) {
-    println!(
-        "{}: {} episodes, goal grasp success first 30 {}, last 30 {}, {} steps received ({} lost{}), {} learner updates{}, {} restarts, {:.1} s; checkpoint, buffer snapshot and curve.csv in {}",
-        match (&summary.failure, summary.interrupted) {
-            (Some(_), _) => "failed",
-            (None, true) => "interrupted",
-            (None, false) => "done",
-        },
-        summary.buffer.episodes,
-        percent(summary.buffer.success_first30),
-        percent(summary.buffer.success_last30),
-        summary.buffer.steps_received,
-        summary.lost(),
-        match summary.buffer.lost_in_restarts {
-            0 => String::new(),
-            n => format!(", {n} messages lost to restarts of the buffer"),
-        },
-        summary.learner.updates,
-        learner_pace(&summary.learner),
-        summary.restarts,
-        summary.wall_s,
-        dir.path().display()
-    );
-    crate::hosts::print_hosts(&summary.hosts);
-}
-
-/// The learner's pace in a summary line: its updates a second, and how much of the time it
-/// was updating (near all of it, the learner paced the run; else the actors did) with its
-/// updates a second of that time.
-fn learner_pace(learner: &LearnerReport) -> String {
-    match (
-        learner.updates_per_s(),
-        learner.busy_share(),
-        learner.updates_per_busy_s(),
-    ) {
-        (Some(rate), Some(share), Some(own)) => format!(
-            " ({rate:.1}/s, busy {:.0}% of the time: {own:.1} a busy second)",
-            100.0 * share
-        ),
-        _ => String::new(),
-    }
-}
-
 /// Starts the roles, follows the run until its budget or an interrupt, then stops it in
 /// order. Errors when a role that cannot be restarted fails.
 fn supervise(
@@ -444,74 +334,4 @@ fn stop_in_order(supervisor: &mut Supervisor, control: &mut Outbox, link: &HostL
         eprintln!("while stopping: {problem}");
     }
     Ok(())
-}
-
-fn default_run_id(stage: u8) -> String {
-    let secs = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    format!("stage{stage}-{secs}")
-}
-
-/// The newest run directory under `logs` (the one `--resume` continues by default).
-fn newest_run(logs: &Path) -> Result<String> {
-    let mut runs: Vec<(SystemTime, String)> = std::fs::read_dir(logs)
-        .with_context(|| format!("reading {}", logs.display()))?
-        .filter_map(|e| e.ok())
-        .filter(|e| RunDir::new(e.path()).holds_run())
-        .filter_map(|e| {
-            let modified = e.metadata().and_then(|m| m.modified()).ok()?;
-            Some((modified, e.file_name().to_string_lossy().into_owned()))
-        })
-        .collect();
-    runs.sort();
-    runs.pop()
-        .map(|(_, id)| id)
-        .ok_or_else(|| anyhow!("--resume: no run directory in {}", logs.display()))
-}
-
-/// This launch's shared memory, as `node`: what the run's dead processes left removed, then a
-/// transport under a namespace of this launch's own ([`launch_namespace`]) with the run's
-/// limits, which it returns.
-pub(crate) fn open_launch(
-    run_id: &str,
-    dir: &RunDir,
-    node: &str,
-    limits: ShmLimits,
-) -> Result<(String, wire::ShmTransport)> {
-    let run_space = shm_namespace(run_id, dir)?;
-    wire::ShmTransport::remove_stale(&run_space)?;
-    let namespace = launch_namespace(&run_space);
-    let transport = wire::ShmTransport::new(&namespace, node, limits)?;
-    Ok((namespace, transport))
-}
-
-/// The name a run's shared-memory services go under: its id (what a person reading
-/// `/dev/shm` recognises) and a hash of its directory, so that runs of one id in different
-/// log directories (two pipelines' `stage1`) never see each other's messages.
-fn shm_namespace(run_id: &str, dir: &RunDir) -> Result<String> {
-    use std::hash::Hasher;
-    let dir =
-        std::fs::canonicalize(dir.path()).with_context(|| format!("{}", dir.path().display()))?;
-    let mut hasher = fnv::FnvHasher::default();
-    hasher.write(dir.as_os_str().as_encoded_bytes());
-    let hash = format!("{:016x}", hasher.finish());
-    // Within the transport's limit on run ids, the hash and its dash kept whole, with room
-    // for a launch's suffix.
-    let id: String = run_id
-        .chars()
-        .take(wire::MAX_RUN_ID - hash.len() - 1 - LAUNCH_SUFFIX)
-        .collect();
-    Ok(format!("{id}-{hash}"))
-}
-
-/// Room [`launch_namespace`] takes after a run's namespace: `-` and a `u32` in hex.
-const LAUNCH_SUFFIX: usize = 1 + 8;
-
-/// The namespace of one launch of the run whose namespace is `run_space`: this launcher's
-/// process id after it. Each launch meets its roles in services of its own: a launch killed
-/// while it created one leaves it half made, and iceoryx2 refuses to open such a service
-/// ("hangs in creation"), so a resumed run must not meet it.
-fn launch_namespace(run_space: &str) -> String {
-    format!("{run_space}-{:x}", std::process::id())
 }
