@@ -15,8 +15,11 @@ use serde_json::Value;
 
 #[path = "slurm/daemons.rs"]
 mod daemons;
+#[path = "common/json.rs"]
+mod json;
 #[path = "common/stage1.rs"]
 mod stage1;
+use json::{json, u};
 
 const CONFIG: &str = "configs/stage1.toml";
 
@@ -322,17 +325,6 @@ fn succeeded(output: &Output, what: &str) -> String {
         output.status
     );
     stdout.into_owned()
-}
-
-fn json(path: &Path) -> Value {
-    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn u(value: &Value) -> u64 {
-    value
-        .as_u64()
-        .unwrap_or_else(|| panic!("{value} is not a count"))
 }
 
 fn host<'s>(summary: &'s Value, name: &str) -> &'s Value {

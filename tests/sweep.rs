@@ -15,7 +15,13 @@ use tempfile::TempDir;
 
 #[path = "slurm/daemons.rs"]
 mod daemons;
+#[path = "common/json.rs"]
+mod json;
+#[path = "common/runs.rs"]
+mod runs;
 use daemons::Slurm;
+use json::{json, u};
+use runs::{succeeds, summary};
 
 /// Each run's episode budget.
 const EPISODES: u64 = 12;
@@ -70,21 +76,7 @@ fn output(command: &mut Command) -> Output {
     command.output().expect("pushgrasp runs")
 }
 
-// `ok` and `fails` take a `Command` or the `&mut Command` its builder methods return.
-
-/// Runs the command, which must succeed; its stdout.
-fn ok(mut command: impl BorrowMut<Command>) -> String {
-    let command = command.borrow_mut();
-    let output = output(command);
-    assert!(
-        output.status.success(),
-        "{command:?} failed ({}):\n{}\n{}",
-        output.status,
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8_lossy(&output.stdout).into_owned()
-}
+// `succeeds` and `fails` take a `Command` or the `&mut Command` its builder methods return.
 
 /// Runs the command, which must fail; its stderr.
 fn fails(mut command: impl BorrowMut<Command>) -> String {
@@ -92,21 +84,6 @@ fn fails(mut command: impl BorrowMut<Command>) -> String {
     let output = output(command);
     assert!(!output.status.success(), "{command:?} succeeded");
     String::from_utf8_lossy(&output.stderr).into_owned()
-}
-
-fn json(path: &Path) -> Value {
-    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn u(value: &Value) -> u64 {
-    value
-        .as_u64()
-        .unwrap_or_else(|| panic!("{value} is not a count"))
-}
-
-fn summary(sweep_dir: &Path, run: &str) -> Value {
-    json(&sweep_dir.join(run).join("summary.json"))
 }
 
 fn modified(path: &Path) -> SystemTime {
@@ -244,7 +221,7 @@ fn dry_run_lists_the_runs_and_checks_their_configs() {
         "--logs",
         logs_arg,
     ];
-    let listing = ok(sweep(repo(), &shipped).arg("--dry-run"));
+    let listing = succeeds(sweep(repo(), &shipped).arg("--dry-run"));
     for line in [
         "stage1-seeds-0  seed=1",
         "stage1-seeds-1  seed=2",
@@ -253,7 +230,7 @@ fn dry_run_lists_the_runs_and_checks_their_configs() {
     ] {
         assert!(listing.contains(line), "{line:?} not in\n{listing}");
     }
-    let verbose = ok(sweep(repo(), &shipped).args(["--dry-run", "--verbose"]));
+    let verbose = succeeds(sweep(repo(), &shipped).args(["--dry-run", "--verbose"]));
     let run_1 = verbose
         .split("# stage1-seeds-1\n")
         .nth(1)
@@ -303,7 +280,7 @@ fn dry_run_lists_the_runs_and_checks_their_configs() {
 fn two_runs_at_once_do_not_cross() {
     let dir = workspace();
     sweep_file(dir.path(), "pair", EPISODES, &[1, 2], "");
-    let out = ok(sweep(
+    let out = succeeds(sweep(
         dir.path(),
         &["--config", "pair.toml", "--max-parallel", "2"],
     ));
@@ -348,7 +325,7 @@ fn two_runs_at_once_do_not_cross() {
         spans[0].0 < spans[1].1 && spans[1].0 < spans[0].1,
         "the runs did not overlap: {spans:?}"
     );
-    let status = ok(sweep(dir.path(), &["status", "logs/pair"]));
+    let status = succeeds(sweep(dir.path(), &["status", "logs/pair"]));
     assert!(status.contains("2 runs, 2 done"), "{status}");
 }
 
@@ -359,7 +336,7 @@ fn a_failed_run_is_reported_and_the_others_go_on() {
     // Make the sweep directory without running anything, then put a file where the second
     // run's directory goes: its `train` fails, the first run's does not.
     let args = ["--config", "broken.toml"];
-    ok(sweep(dir.path(), &args).args(["--backend", "slurm", "--no-submit"]));
+    succeeds(sweep(dir.path(), &args).args(["--backend", "slurm", "--no-submit"]));
     let sweep_dir = dir.path().join("logs/broken");
     std::fs::write(sweep_dir.join("broken-1"), "in the way").unwrap();
     let output = output(sweep(dir.path(), &args).arg("--resume"));
@@ -377,7 +354,7 @@ fn a_failed_run_is_reported_and_the_others_go_on() {
         "{stderr}"
     );
     assert_eq!(summary(&sweep_dir, "broken-0")["interrupted"], false);
-    let status = ok(sweep(dir.path(), &["status", "logs/broken"]));
+    let status = succeeds(sweep(dir.path(), &["status", "logs/broken"]));
     assert!(status.contains("1 done, 1 failed"), "{status}");
 }
 
@@ -415,7 +392,7 @@ fn sigterm_stops_the_runs_and_resume_is_offered() {
         !sweep_dir.join("stop-2").exists(),
         "a run started after the stop"
     );
-    let status = ok(sweep(dir.path(), &["status", "logs/stop"]));
+    let status = succeeds(sweep(dir.path(), &["status", "logs/stop"]));
     assert!(status.contains("1 not started, 2 unfinished"), "{status}");
 }
 
@@ -451,7 +428,7 @@ fn a_killed_sweep_resumes_without_rerunning_finished_runs() {
 
     let first = sweep_dir.join("again-0/summary.json");
     let (bytes, time) = (std::fs::read(&first).unwrap(), modified(&first));
-    let status = ok(sweep(dir.path(), &["status", "logs/again"]));
+    let status = succeeds(sweep(dir.path(), &["status", "logs/again"]));
     for line in [
         "again-0  done",
         "again-1  unfinished",
@@ -465,7 +442,7 @@ fn a_killed_sweep_resumes_without_rerunning_finished_runs() {
         "{error}"
     );
 
-    let out = ok(sweep(dir.path(), &args).arg("--resume"));
+    let out = succeeds(sweep(dir.path(), &args).arg("--resume"));
     assert!(out.contains("3 runs, 2 to run"), "{out}");
     assert_eq!(
         std::fs::read(&first).unwrap(),
@@ -508,12 +485,12 @@ fn success_from_curve(run_dir: &Path) -> (usize, f64) {
 fn the_summary_matches_the_runs_files() {
     let dir = workspace();
     sweep_file(dir.path(), "table", EPISODES, &[3, 4], "");
-    ok(sweep(
+    succeeds(sweep(
         dir.path(),
         &["--config", "table.toml", "--max-parallel", "2"],
     ));
     let sweep_dir = dir.path().join("logs/table");
-    let report: Value = serde_json::from_str(&ok(sweep(
+    let report: Value = serde_json::from_str(&succeeds(sweep(
         dir.path(),
         &["summary", "logs/table", "--json", "--plot", "curves.png"],
     )))
@@ -572,7 +549,7 @@ fn the_summary_matches_the_runs_files() {
     let png = std::fs::read(dir.path().join("curves.png")).unwrap();
     assert!(png.starts_with(b"\x89PNG"), "--plot wrote no PNG");
 
-    let text = ok(sweep(
+    let text = succeeds(sweep(
         dir.path(),
         &["summary", "logs/table", "--sort", "run"],
     ));
@@ -595,7 +572,7 @@ fn the_slurm_script_names_every_run_and_runs_one() {
         &[1, 2, 3],
         "\n[slurm]\ncpus_per_task = 1\nmax_parallel = 2\n",
     );
-    let out = ok(sweep(
+    let out = succeeds(sweep(
         dir.path(),
         &[
             "--config",
@@ -676,7 +653,7 @@ fn a_sweep_runs_as_a_job_array_on_a_real_slurm() {
         command.env("SLURM_CONF", &slurm.conf);
         command
     };
-    let out = ok(with_slurm(&[
+    let out = succeeds(with_slurm(&[
         "--config",
         "array.toml",
         "--backend",
@@ -690,7 +667,7 @@ fn a_sweep_runs_as_a_job_array_on_a_real_slurm() {
         .to_string();
     let mut status = String::new();
     wait_until("both array tasks done", Duration::from_secs(300), || {
-        status = ok(with_slurm(&["status", "logs/array"]));
+        status = succeeds(with_slurm(&["status", "logs/array"]));
         status.contains("2 runs, 2 done")
     });
     assert!(status.contains(&format!("job array {job}")), "{status}");
@@ -701,7 +678,7 @@ fn a_sweep_runs_as_a_job_array_on_a_real_slurm() {
         );
     }
     let report: Value =
-        serde_json::from_str(&ok(with_slurm(&["summary", "logs/array", "--json"]))).unwrap();
+        serde_json::from_str(&succeeds(with_slurm(&["summary", "logs/array", "--json"]))).unwrap();
     for row in report["runs"].as_array().unwrap() {
         assert_eq!(row["state"], "done", "{row}");
         assert!(u(&row["episodes"]) >= EPISODES, "{row}");

@@ -12,8 +12,14 @@ use rundir::record::{LAUNCHER_SUMMARY, PROCESS_MEMORY};
 use runtime::memory::MemoryRecord;
 use serde_json::Value;
 
+#[path = "common/json.rs"]
+mod json;
+#[path = "common/runs.rs"]
+mod runs;
 #[path = "common/stage1.rs"]
 mod stage1;
+use json::{json, u};
+use runs::{succeeds, summary};
 
 const CONFIG: &str = "configs/stage1.toml";
 
@@ -36,34 +42,6 @@ fn command_with(config: &Path, logs: &Path, args: &[&str]) -> Command {
 
 fn train_ok(logs: &Path, args: &[&str]) -> String {
     succeeds(command(logs, args))
-}
-
-/// Runs `command`, which must succeed; returns its standard output.
-fn succeeds(mut command: Command) -> String {
-    let output = command.output().expect("pushgrasp runs");
-    assert!(
-        output.status.success(),
-        "{command:?} failed ({}):\n{}\n{}",
-        output.status,
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8_lossy(&output.stdout).into_owned()
-}
-
-fn json(path: &Path) -> Value {
-    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
-    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn summary(logs: &Path, run: &str) -> Value {
-    json(&logs.join(run).join("summary.json"))
-}
-
-fn u(value: &Value) -> u64 {
-    value
-        .as_u64()
-        .unwrap_or_else(|| panic!("{value} is not a count"))
 }
 
 /// Every step an actor reports sending was received, every stream is gap-free, and the
