@@ -1,6 +1,9 @@
 //! Proportional prioritised replay (Schaul et al.; Ape-X's initial priorities): one ring and
 //! one sum tree per primitive, so push and grasp batches are drawn from their own experience
 //! at their own priorities.
+//!
+//! The rings and the prioritised replay over them are one structure: every method keeps the rings,
+//! the sum trees and the counts in step, so they stay in one file.
 
 use experience::{BatchItem, Key};
 use rand::{Rng, RngExt};

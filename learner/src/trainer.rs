@@ -5,6 +5,9 @@
 //! importance-sampling weight, and an Adam step on the net being trained. With an outcome
 //! head on the grasp net, its cross-entropy against the grasp's outcome at the same pixels is
 //! added. Every other pixel contributes nothing.
+//!
+//! The training step is one computation (targets, losses, weights, the Adam step) whose parts share
+//! the trainer's state, so they stay in one file.
 
 use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};

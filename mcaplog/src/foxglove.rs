@@ -7,6 +7,9 @@
 //! MCAP schema of each is a `FileDescriptorSet` built here in code from the same field list, so
 //! there is no `protoc` step and no generated file to keep in step: the descriptor and the
 //! struct are side by side below.
+//!
+//! Its length is the schemas themselves: each message's struct beside its descriptor, which are
+//! kept in step by being read together.
 
 use prost::Message;
 use prost_types::field_descriptor_proto::{Label, Type};

@@ -3,6 +3,9 @@
 //! grasp), and epsilon-greedy exploration draws the chosen primitive's pixel and rotation.
 //! The goal-conditioned VPG baseline swaps the discriminator for VPG's rule, and the
 //! authors' test-time rule adds a crowded-border test to it ([`Rule`]).
+//!
+//! The rule that chooses and the masks it chooses within (grasp region, push starts, trial grasps)
+//! are one policy, read together against the paper.
 
 use std::ops::Bound;
 

@@ -9,6 +9,9 @@
 //! the grasps that always succeed above those that never do (AUC, target 0.85), and how its
 //! best-scored grasp fares. The grasp ranking of packed clusters the net never trained on:
 //! `--random 12 --objects 5 --row 4 --lines 2 --checkpoint <run>/checkpoint`.
+//!
+//! At nearly 500 lines it is one command: the grasps measured, the net's scores beside them and the
+//! table printed share their records and are used nowhere else.
 
 use std::path::PathBuf;
 

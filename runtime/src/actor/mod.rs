@@ -5,6 +5,9 @@
 //! state's value and a push's reward needs the goal's grasp Q after it: so a step travels
 //! with everything the learner needs and its actor's initial priority. An episode ends with
 //! its grasp; its end follows that grasp's step on the same topic.
+//!
+//! The actor's loop, its policy and its environments hand each other a step as it is made, so they
+//! stay in one file.
 
 mod heartbeat;
 mod pictures;

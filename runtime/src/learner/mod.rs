@@ -6,6 +6,9 @@
 //! trains. The weights' version is the number of updates they come from (plus, after the
 //! learner was restarted, what its predecessor published past the checkpoint resumed), so
 //! it only grows, across `--resume` and restarts.
+//!
+//! The learner role is one loop: sampling, training, publishing and checkpointing in the order of
+//! one update, with the ports it does them through.
 
 use std::time::{Duration, Instant};
 
