@@ -5,9 +5,7 @@
 //! Each parcel is acknowledged once its steps are in the steps topic: a host has a few in
 //! flight at most, so Zenoh's reader of its link never waits on the buffer. Only steps and
 //! episode ends of a host's own actors enter; anything else is counted as rejected.
-//!
-//! At about 420 lines of code this is one idea, the central host's side of the link: its join
-//! answers and its up and down threads share one state and read best together.
+//! One idea at about 420 lines of code: the join answers and both threads share one state.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};

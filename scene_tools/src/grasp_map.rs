@@ -426,7 +426,7 @@ fn print_table(cases: &[CaseGrasps], summary: &Summary, args: &GraspsArgs) {
             "{case:<20} {goal:>5} {candidates:>11} {always:>8} {never:>8} {success:>8}{inside} {scripted:>9}{net}"
         );
     };
-    let scored = cases.iter().any(|c| c.net.is_some());
+    let scored = summary.net_best.is_some();
     let header = if scored {
         format!(
             " {:>8} {:>9} {:>9}",
