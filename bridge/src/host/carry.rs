@@ -35,8 +35,12 @@ pub struct UpReport {
 
 /// The parcels this host sent that the central host has not taken yet, and its
 /// acknowledgements. A parcel in flight when the link dropped is lost with the Zenoh session
-/// that carried it: the window keeps every parcel until it is taken and sends them all again
-/// once the central host listens again (it takes each number once).
+/// that carried it: the window keeps every parcel until it is taken and sends them again,
+/// oldest first, once the central host listens again (it takes each number once).
+///
+/// They go again one at a time, each once the one before is taken: the central host's lease
+/// counts whole Zenoh batches, and all of them at once in one batch would outlast it on a
+/// slow link, which would drop the session again (and again, at each return).
 struct Window {
     taken: Subscriber<RingChannelHandler<Sample>>,
     /// The newest parcel the central host took.
@@ -45,6 +49,9 @@ struct Window {
     unacked: VecDeque<(u64, ZBytes)>,
     /// The central host's returns seen (`Flags::central_returns`).
     returns_seen: u64,
+    /// Since the link came back: the newest parcel sent again (the newest taken before the
+    /// first); None once every parcel the link lost went again.
+    resending: Option<u64>,
     /// Parcels sent again after the link came back.
     resent: u64,
 }
@@ -56,6 +63,7 @@ impl Window {
             newest_taken: 0,
             unacked: VecDeque::new(),
             returns_seen: 0,
+            resending: None,
             resent: 0,
         }
     }
@@ -100,19 +108,39 @@ impl Window {
                 relinked = true;
             } else {
                 if relinked {
-                    for (_, parcel) in &self.unacked {
-                        put(publisher, parcel.clone())?;
-                        self.resent += 1;
-                    }
+                    self.resending = Some(self.newest_taken);
                     relinked = false;
                 }
-                if number - 1 - self.newest_taken.min(number - 1) < PARCELS_IN_FLIGHT {
+                self.resend_next(publisher)?;
+                if self.resending.is_none()
+                    && number - 1 - self.newest_taken.min(number - 1) < PARCELS_IN_FLIGHT
+                {
                     return Ok(true);
                 }
             }
             steps_in.refresh()?;
             std::thread::sleep(POLL);
         }
+    }
+
+    /// While parcels the link lost wait to go again: the next of them, once the one sent
+    /// again before it was taken.
+    fn resend_next(&mut self, publisher: &Publisher<'_>) -> Result<()> {
+        let Some(newest_resent) = self.resending else {
+            return Ok(());
+        };
+        if self.newest_taken < newest_resent {
+            return Ok(());
+        }
+        self.resending = match self.unacked.iter().find(|&&(n, _)| n > newest_resent) {
+            Some((n, parcel)) => {
+                put(publisher, parcel.clone())?;
+                self.resent += 1;
+                Some(*n)
+            }
+            None => None,
+        };
+        Ok(())
     }
 
     /// Sends parcel `number` and keeps it until it is taken.
