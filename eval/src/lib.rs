@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use agent::evaluate::CaseReport;
 use agent::failures::FailureReport;
-use agent::{CaseMetrics, EvalConfig, RunOutcome, RunRecord, Scene, TestLearning};
+use agent::{Agent, CaseMetrics, EvalConfig, RunOutcome, RunRecord, Scene, TestLearning};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use learner::checkpoint::config_hash;
@@ -24,6 +24,7 @@ use policy::Rule;
 use serde::Serialize;
 
 use rundir::backend::{self, Backend};
+use rundir::config::RunConfig;
 use rundir::settings::{merge, parse_setting};
 use rundir::{load_agent, named_arrangements};
 
@@ -115,55 +116,8 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     } else {
         policy::Mode::PushGrasp
     };
-    let on_backend = args.backend.map(backend::setting).unwrap_or_default();
-    let mut set = on_backend.clone();
-    for setting in &args.set {
-        merge(&mut set, setting);
-    }
-    if args.authors_rule {
-        for setting in [
-            format!("policy.q_star={AUTHORS_Q_STAR}"),
-            "policy.rule=\"threshold-or-crowded\"".into(),
-        ] {
-            merge(
-                &mut set,
-                &parse_setting(&setting).map_err(anyhow::Error::msg)?,
-            );
-        }
-    }
-    let (config, mut agent, updates) =
-        load_agent(&args.checkpoint, args.config.as_deref(), &set, mode)?;
-    for checkpoint in &args.ensemble {
-        let (member_config, member, _) = load_agent(checkpoint, None, &on_backend, mode)?;
-        if config_hash(&member_config.net) != config_hash(&config.net)
-            || member_config.side() != config.side()
-        {
-            bail!(
-                "--ensemble {}: its nets or heightmap size differ from --checkpoint {}'s",
-                checkpoint.display(),
-                args.checkpoint.display()
-            );
-        }
-        agent.join_ensemble(member.nets())?;
-    }
-    let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
-        .into_iter()
-        .map(|(path, name, arrangement)| {
-            if arrangement.goal.is_none() && !args.goal_agnostic {
-                bail!(
-                    "{}: names no goal object (goal = <id>); only --goal-agnostic tests it",
-                    path.display()
-                );
-            }
-            Ok((name, Scene::Arrangement(arrangement)))
-        })
-        .collect::<Result<_>>()?;
-    if let Some(objects) = args.random {
-        cases.push((format!("random-{objects}"), Scene::Random { objects }));
-    }
-    if cases.is_empty() {
-        bail!("nothing to test: give --arrangements and/or --random");
-    }
+    let (config, agent, updates) = load_nets(args, mode)?;
+    let cases = cases(args)?;
     let learning = args.learn.then(|| TestLearning {
         net: config.net.clone(),
         learning: config.learning.clone(),
@@ -230,6 +184,67 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         print_why(&report);
     }
     Ok(())
+}
+
+/// The tested nets (`--checkpoint`, and each `--ensemble` member as one more vote) and their
+/// run's config with `--backend`, `--set` and `--authors-rule` applied; the updates they had.
+fn load_nets(args: &EvalArgs, mode: policy::Mode) -> Result<(RunConfig, Agent, u64)> {
+    let on_backend = args.backend.map(backend::setting).unwrap_or_default();
+    let mut set = on_backend.clone();
+    for setting in &args.set {
+        merge(&mut set, setting);
+    }
+    if args.authors_rule {
+        for setting in [
+            format!("policy.q_star={AUTHORS_Q_STAR}"),
+            "policy.rule=\"threshold-or-crowded\"".into(),
+        ] {
+            merge(
+                &mut set,
+                &parse_setting(&setting).map_err(anyhow::Error::msg)?,
+            );
+        }
+    }
+    let (config, mut agent, updates) =
+        load_agent(&args.checkpoint, args.config.as_deref(), &set, mode)?;
+    for checkpoint in &args.ensemble {
+        let (member_config, member, _) = load_agent(checkpoint, None, &on_backend, mode)?;
+        if config_hash(&member_config.net) != config_hash(&config.net)
+            || member_config.side() != config.side()
+        {
+            bail!(
+                "--ensemble {}: its nets or heightmap size differ from --checkpoint {}'s",
+                checkpoint.display(),
+                args.checkpoint.display()
+            );
+        }
+        agent.join_ensemble(member.nets())?;
+    }
+    Ok((config, agent, updates))
+}
+
+/// The cases to test: each arrangement file (with a goal, unless `--goal-agnostic`), then
+/// the random scenes.
+fn cases(args: &EvalArgs) -> Result<Vec<(String, Scene)>> {
+    let mut cases: Vec<(String, Scene)> = named_arrangements(&args.arrangements)?
+        .into_iter()
+        .map(|(path, name, arrangement)| {
+            if arrangement.goal.is_none() && !args.goal_agnostic {
+                bail!(
+                    "{}: names no goal object (goal = <id>); only --goal-agnostic tests it",
+                    path.display()
+                );
+            }
+            Ok((name, Scene::Arrangement(arrangement)))
+        })
+        .collect::<Result<_>>()?;
+    if let Some(objects) = args.random {
+        cases.push((format!("random-{objects}"), Scene::Random { objects }));
+    }
+    if cases.is_empty() {
+        bail!("nothing to test: give --arrangements and/or --random");
+    }
+    Ok(cases)
 }
 
 fn write_runs(path: &Path, reports: &[CaseReport]) -> Result<()> {

@@ -177,43 +177,7 @@ fn draw_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     chart: &Chart,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-    let fixed_y = chart
-        .y_range
-        .filter(|&(lo, hi)| lo.is_finite() && hi.is_finite() && lo < hi)
-        .map(|(lo, hi)| lo..hi);
-    let mut curves: Vec<Vec<(f64, f64)>> = chart
-        .series
-        .iter()
-        .map(|s| {
-            s.points
-                .iter()
-                .copied()
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-                .collect()
-        })
-        .collect();
-    let x = fit(curves.iter().flatten().map(|p| p.0), 0.0);
-    let y = match &fixed_y {
-        Some(range) => {
-            // Nothing clips to the plotting area, so a curve leaving a fixed range runs
-            // along its edge instead of over the axes.
-            for p in curves.iter_mut().flatten() {
-                p.1 = p.1.clamp(range.start, range.end);
-            }
-            range.clone()
-        }
-        // The reference lines are part of the fit, so Q* stays in view below the curves.
-        None => fit(
-            curves.iter().flatten().map(|p| p.1).chain(
-                chart
-                    .references
-                    .iter()
-                    .map(|r| r.0)
-                    .filter(|v| v.is_finite()),
-            ),
-            0.05,
-        ),
-    };
+    let (curves, x, y) = curves_and_ranges(chart);
     let references: Vec<&(f64, String)> = chart
         .references
         .iter()
@@ -280,6 +244,52 @@ fn draw_panel<DB: DrawingBackend>(
     Ok(())
 }
 
+/// A series' points as drawn.
+type Curve = Vec<(f64, f64)>;
+
+/// Each series' finite points and the axes' ranges: x fits the points; y is the chart's
+/// fixed range (the points clamped into it) or fits the points and the reference lines.
+fn curves_and_ranges(chart: &Chart) -> (Vec<Curve>, Range<f64>, Range<f64>) {
+    let fixed_y = chart
+        .y_range
+        .filter(|&(lo, hi)| lo.is_finite() && hi.is_finite() && lo < hi)
+        .map(|(lo, hi)| lo..hi);
+    let mut curves: Vec<Curve> = chart
+        .series
+        .iter()
+        .map(|s| {
+            s.points
+                .iter()
+                .copied()
+                .filter(|(x, y)| x.is_finite() && y.is_finite())
+                .collect()
+        })
+        .collect();
+    let x = fit(curves.iter().flatten().map(|p| p.0), 0.0);
+    let y = match &fixed_y {
+        Some(range) => {
+            // Nothing clips to the plotting area, so a curve leaving a fixed range runs
+            // along its edge instead of over the axes.
+            for p in curves.iter_mut().flatten() {
+                p.1 = p.1.clamp(range.start, range.end);
+            }
+            range.clone()
+        }
+        // The reference lines are part of the fit, so Q* stays in view below the curves.
+        None => fit(
+            curves.iter().flatten().map(|p| p.1).chain(
+                chart
+                    .references
+                    .iter()
+                    .map(|r| r.0)
+                    .filter(|v| v.is_finite()),
+            ),
+            0.05,
+        ),
+    };
+    (curves, x, y)
+}
+
 /// The range of `values` widened by `pad` of its span on each side; a single value gets a unit
 /// wide range around it and no values get `0..1`, as plotters needs a non-empty range.
 fn fit(values: impl Iterator<Item = f64>, pad: f64) -> Range<f64> {
@@ -308,11 +318,7 @@ fn tick_format(range: &Range<f64>) -> impl Fn(&f64) -> String {
 /// The corner whose quarter of the plot holds the fewest points, so the legend hides as
 /// little as it can: a falling loss leaves the upper right free, a rising success rate the
 /// upper left, a plateau near the top the lower corners.
-fn legend_corner(
-    curves: &[Vec<(f64, f64)>],
-    x: &Range<f64>,
-    y: &Range<f64>,
-) -> SeriesLabelPosition {
+fn legend_corner(curves: &[Curve], x: &Range<f64>, y: &Range<f64>) -> SeriesLabelPosition {
     let x_mid = (x.start + x.end) / 2.0;
     let y_mid = (y.start + y.end) / 2.0;
     // Indexed by (right, upper) as 2 * right + upper.

@@ -65,34 +65,23 @@ enum End {
     CentralGone(Duration),
 }
 
-pub fn join(args: &JoinArgs) -> Result<()> {
-    let secret = RunSecret::read(&args.secret_file)?;
-    if secret.run_id != args.run_id {
-        bail!(
-            "{} holds the secret of run {:?}, not {:?}",
-            args.secret_file.display(),
-            secret.run_id,
-            args.run_id
-        );
-    }
-    if args.actors == 0 {
-        bail!("--actors: a joined host runs at least 1 actor");
-    }
-    let host = match &args.host_name {
-        Some(name) => name.clone(),
-        None => machine_name()?,
-    };
-    bridge::traces::install(false);
-    let session = bridge::session::connect(&args.endpoint, &args.run_id, &secret)?;
-    let keys = Keys::new(&args.run_id);
-    let request = JoinRequest {
-        run_id: args.run_id.clone(),
-        host: host.clone(),
-        actors: args.actors,
-    };
-    let placement = bridge::host::join(&session, &keys, &request)?;
-    let config = RunConfig::parse(&placement.config, "the run's config from the central host")?;
+/// The central host's answer to this host's request: where it stands in the run.
+struct Joined {
+    host: String,
+    session: bridge::zenoh::Session,
+    keys: Keys,
+    placement: bridge::Placement,
+    config: RunConfig,
+}
 
+pub fn join(args: &JoinArgs) -> Result<()> {
+    let Joined {
+        host,
+        session,
+        keys,
+        placement,
+        config,
+    } = ask_to_join(args)?;
     let dir = RunDir::in_logs(&args.logs, &args.run_id).host(&host);
     std::fs::create_dir_all(dir.reports())
         .with_context(|| format!("creating {}", dir.path().display()))?;
@@ -157,14 +146,7 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         eprintln!("while stopping: {problem}");
     }
     let sent = bridge.finish(give_up)?;
-    let ended = match &outcome {
-        Ok(End::Ordered) => "the run stopped its actors".to_string(),
-        Ok(End::Interrupted) => "interrupted".to_string(),
-        Ok(End::CentralGone(gone)) => {
-            format!("the central host was gone for {:.0} s", gone.as_secs_f64())
-        }
-        Err(e) => format!("{e:#}"),
-    };
+    let ended = why_it_ended(&outcome);
     let summary = summary(
         &args.run_id,
         &host,
@@ -176,6 +158,56 @@ pub fn join(args: &JoinArgs) -> Result<()> {
     );
     supervisor.log.finish()?;
     write_json(&dir.report("host"), &summary)?;
+    print_stopped(&host, &ended, &sent);
+    drop(status);
+    drop(control);
+    drop(transport);
+    wire::ShmTransport::remove_stale(&namespace)?;
+    match outcome? {
+        End::CentralGone(_) => bail!("host {host}: {ended}; its actors were stopped"),
+        End::Ordered | End::Interrupted => Ok(()),
+    }
+}
+
+/// Checks the arguments, connects to the central host and asks it for this host's place.
+fn ask_to_join(args: &JoinArgs) -> Result<Joined> {
+    let secret = RunSecret::read(&args.secret_file)?;
+    if secret.run_id != args.run_id {
+        bail!(
+            "{} holds the secret of run {:?}, not {:?}",
+            args.secret_file.display(),
+            secret.run_id,
+            args.run_id
+        );
+    }
+    if args.actors == 0 {
+        bail!("--actors: a joined host runs at least 1 actor");
+    }
+    let host = match &args.host_name {
+        Some(name) => name.clone(),
+        None => machine_name()?,
+    };
+    bridge::traces::install(false);
+    let session = bridge::session::connect(&args.endpoint, &args.run_id, &secret)?;
+    let keys = Keys::new(&args.run_id);
+    let request = JoinRequest {
+        run_id: args.run_id.clone(),
+        host: host.clone(),
+        actors: args.actors,
+    };
+    let placement = bridge::host::join(&session, &keys, &request)?;
+    let config = RunConfig::parse(&placement.config, "the run's config from the central host")?;
+    Ok(Joined {
+        host,
+        session,
+        keys,
+        placement,
+        config,
+    })
+}
+
+/// The host's closing line: why it stopped and what its bridge sent.
+fn print_stopped(host: &str, ended: &str, sent: &UpReport) {
     println!(
         "host {host} stopped ({ended}): {} steps and episode ends sent in {} parcels ({:.1}x compressed, {} sent again after the link dropped), {} thrown away",
         sent.messages,
@@ -184,13 +216,17 @@ pub fn join(args: &JoinArgs) -> Result<()> {
         sent.resent,
         sent.abandoned
     );
-    drop(status);
-    drop(control);
-    drop(transport);
-    wire::ShmTransport::remove_stale(&namespace)?;
-    match outcome? {
-        End::CentralGone(_) => bail!("host {host}: {ended}; its actors were stopped"),
-        End::Ordered | End::Interrupted => Ok(()),
+}
+
+/// Why the host stopped, in its report's words.
+fn why_it_ended(outcome: &Result<End>) -> String {
+    match outcome {
+        Ok(End::Ordered) => "the run stopped its actors".to_string(),
+        Ok(End::Interrupted) => "interrupted".to_string(),
+        Ok(End::CentralGone(gone)) => {
+            format!("the central host was gone for {:.0} s", gone.as_secs_f64())
+        }
+        Err(e) => format!("{e:#}"),
     }
 }
 

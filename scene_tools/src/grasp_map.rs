@@ -218,24 +218,7 @@ fn measure(args: &GraspsArgs) -> Result<Vec<CaseGrasps>> {
         .map(|(path, name, arrangement)| (path.display().to_string(), name, arrangement))
         .collect();
     for index in 0..args.random.unwrap_or(0) {
-        let name = format!("random-{}{}-{index}", args.objects, args.rows.label());
-        let seed = args
-            .seed
-            .wrapping_add(RANDOM_SCENE_SEEDS)
-            .wrapping_add(index as u64);
-        let (tabletop, _) = Tabletop::random_with_rows(&sim, args.objects, args.rows.rows(), seed)?;
-        // With rows, the goal is one of their blocks (ids 1 to `row`).
-        let visible: Vec<ObjectId> = Camera::new(tabletop.grid())
-            .render(&tabletop)
-            .visible_ids()
-            .into_iter()
-            .filter(|&id| args.rows.row < 2 || usize::from(id) <= args.rows.row)
-            .collect();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {
-            bail!("{name} (seed {seed}): no object is seen from above");
-        };
-        let arrangement = tabletop.to_arrangement(Some(name.clone()), Some(goal));
+        let (name, arrangement) = random_scene(args, &sim, index)?;
         scenes.push((name.clone(), name, arrangement));
     }
     let mut cases = Vec::new();
@@ -279,20 +262,7 @@ fn measure(args: &GraspsArgs) -> Result<Vec<CaseGrasps>> {
             )?),
             None => None,
         };
-        let inside = MARGINS
-            .iter()
-            .map(|&margin| {
-                let region = policy::grasp_region(&maps, goal, margin);
-                let kept: Vec<usize> = (0..candidates.len())
-                    .filter(|&i| region[candidates[i].row * maps.side() + candidates[i].col])
-                    .collect();
-                let success = (!kept.is_empty()).then(|| {
-                    kept.iter().map(|&i| picks[i]).sum::<usize>() as f64
-                        / (kept.len() * args.jitters) as f64
-                });
-                MarginSuccess { margin, success }
-            })
-            .collect();
+        let inside = inside_margins(&maps, goal, &candidates, &picks, args.jitters);
         let share = |count: usize| count as f64 / candidates.len() as f64;
         cases.push(CaseGrasps {
             case: name,
@@ -307,6 +277,53 @@ fn measure(args: &GraspsArgs) -> Result<Vec<CaseGrasps>> {
         });
     }
     Ok(cases)
+}
+
+/// Random scene `index` of `args`, named, with a goal seen from above (with rows, one of
+/// their blocks: ids 1 to `row`).
+fn random_scene(args: &GraspsArgs, sim: &SimConfig, index: usize) -> Result<(String, Arrangement)> {
+    let name = format!("random-{}{}-{index}", args.objects, args.rows.label());
+    let seed = args
+        .seed
+        .wrapping_add(RANDOM_SCENE_SEEDS)
+        .wrapping_add(index as u64);
+    let (tabletop, _) = Tabletop::random_with_rows(sim, args.objects, args.rows.rows(), seed)?;
+    let visible: Vec<ObjectId> = Camera::new(tabletop.grid())
+        .render(&tabletop)
+        .visible_ids()
+        .into_iter()
+        .filter(|&id| args.rows.row < 2 || usize::from(id) <= args.rows.row)
+        .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let Some(&goal) = visible.get(rng.random_range(0..visible.len().max(1))) else {
+        bail!("{name} (seed {seed}): no object is seen from above");
+    };
+    let arrangement = tabletop.to_arrangement(Some(name.clone()), Some(goal));
+    Ok((name, arrangement))
+}
+
+/// The success of the candidates inside each of [`MARGINS`]' grasp regions (None where the
+/// region keeps none); `picks[i]` is how many of the `jitters` copies candidate `i` picked.
+fn inside_margins(
+    maps: &Heightmaps,
+    goal: ObjectId,
+    candidates: &[Action],
+    picks: &[usize],
+    jitters: usize,
+) -> Vec<MarginSuccess> {
+    MARGINS
+        .iter()
+        .map(|&margin| {
+            let region = policy::grasp_region(maps, goal, margin);
+            let kept: Vec<usize> = (0..candidates.len())
+                .filter(|&i| region[candidates[i].row * maps.side() + candidates[i].col])
+                .collect();
+            let success = (!kept.is_empty()).then(|| {
+                kept.iter().map(|&i| picks[i]).sum::<usize>() as f64 / (kept.len() * jitters) as f64
+            });
+            MarginSuccess { margin, success }
+        })
+        .collect()
 }
 
 /// Grasps at every `stride`-th pixel of the goal's mask in `maps`, at each of the distinct

@@ -230,101 +230,109 @@ fn bar_collider(bar: [f32; 3]) -> ColliderBuilder {
     ))
 }
 
+/// A gripper part's contact material: it touches the table and the objects, not itself.
+fn gripper_material(collider: ColliderBuilder, friction: f32) -> ColliderBuilder {
+    let groups = InteractionGroups::new(
+        GRIPPER_GROUP,
+        TABLE_GROUP | OBJECT_GROUP,
+        InteractionTestMode::And,
+    );
+    material::bullet(collider, friction).collision_groups(groups)
+}
+
+impl Side {
+    /// The finger (its link and its pad, each 0.045 kg, carried by its largest box) and its
+    /// two links on side `side` (+1 or -1), placed as stored; not joined yet.
+    fn insert(world: &mut PhysicsWorld, side: f32, stored_origin: Vector) -> Self {
+        let finger = world.insert_body(RigidBodyBuilder::dynamic().can_sleep(false));
+        for (parts, friction) in [
+            (&FINGER_PARTS[..], LINK_FRICTION),
+            (&PAD_PARTS, PAD_FRICTION),
+        ] {
+            for (i, part) in parts.iter().enumerate() {
+                let collider = part_collider(part, stored_origin, side);
+                let collider = if i == 0 {
+                    collider.mass(PART_MASS)
+                } else {
+                    collider.density(0.0)
+                };
+                world.insert_collider(gripper_material(collider, friction), Some(finger));
+            }
+        }
+        let links = [(LINK0_BAR, PART_MASS), (LINK2_BAR, 2.0 * PART_MASS)].map(|(bar, mass)| {
+            let link = world.insert_body(RigidBodyBuilder::dynamic().can_sleep(false));
+            world.insert_collider(
+                gripper_material(bar_collider(bar).mass(mass), LINK_FRICTION),
+                Some(link),
+            );
+            link
+        });
+        Self {
+            side,
+            finger,
+            links,
+        }
+    }
+
+    /// Joins the finger and its links to the palm. The finger stays parallel to the palm and
+    /// moves in its plane; each link turns on the palm at its pivot and holds the finger at
+    /// its end, so the finger moves on the links' arc. Every constraint removes a freedom no
+    /// other one does (a redundant set leaves the iterative solver fighting itself and the
+    /// fingers tilting): the second link, equal and parallel to the first, follows the
+    /// finger, holding it in the scene's parallelogram.
+    fn join_to(&self, world: &mut PhysicsWorld, palm: RigidBodyHandle, stored_origin: Vector) {
+        let in_plane = JointAxesMask::LIN_X | JointAxesMask::LIN_Z;
+        world.insert_impulse_joint(
+            palm,
+            self.finger,
+            GenericJointBuilder::new(JointAxesMask::ANG_AXES | JointAxesMask::LIN_Y)
+                .local_anchor2(-self.mirror(stored_origin))
+                .contacts_enabled(false),
+        );
+        for (&link, pivot) in self.links.iter().zip([LINK0_PIVOT, LINK2_PIVOT]) {
+            let on_palm = self.mirror(Vector::new(pivot[0], 0.0, pivot[1]));
+            let on_finger = self.mirror(Vector::new(
+                pivot[0] - LINK0_PIVOT[0],
+                0.0,
+                pivot[1] - LINK0_PIVOT[1],
+            ));
+            world.insert_impulse_joint(
+                palm,
+                link,
+                RevoluteJointBuilder::new(Vector::Y)
+                    .local_anchor1(on_palm)
+                    .local_anchor2(Vector::ZERO)
+                    .contacts_enabled(false),
+            );
+            world.insert_impulse_joint(
+                link,
+                self.finger,
+                GenericJointBuilder::new(in_plane)
+                    .local_anchor1(Vector::new(0.0, 0.0, -LINK_LENGTH))
+                    .local_anchor2(on_finger)
+                    .contacts_enabled(false),
+            );
+        }
+    }
+}
+
 impl Gripper {
     pub(crate) fn new(world: &mut PhysicsWorld) -> Self {
-        let groups = InteractionGroups::new(
-            GRIPPER_GROUP,
-            TABLE_GROUP | OBJECT_GROUP,
-            InteractionTestMode::And,
-        );
-        let material = |collider: ColliderBuilder, friction: f32| {
-            material::bullet(collider, friction).collision_groups(groups)
-        };
         let palm = world.insert_body(RigidBodyBuilder::kinematic_position_based());
         world.insert_collider(
-            material(part_collider(&BASE_PLATE, Vector::ZERO, 1.0), BASE_FRICTION),
+            gripper_material(part_collider(&BASE_PLATE, Vector::ZERO, 1.0), BASE_FRICTION),
             Some(palm),
         );
         for part in &HOUSING {
             world.insert_collider(
-                material(part_collider(part, Vector::ZERO, 1.0), LINK_FRICTION),
+                gripper_material(part_collider(part, Vector::ZERO, 1.0), LINK_FRICTION),
                 Some(palm),
             );
         }
-
         let stored_origin = stored_origin();
-        let sides = [1.0f32, -1.0].map(|side| {
-            let finger = world.insert_body(RigidBodyBuilder::dynamic().can_sleep(false));
-            // The finger (its link and its pad, each 0.045 kg, carried by its largest box).
-            for (parts, friction) in [
-                (&FINGER_PARTS[..], LINK_FRICTION),
-                (&PAD_PARTS, PAD_FRICTION),
-            ] {
-                for (i, part) in parts.iter().enumerate() {
-                    let collider = part_collider(part, stored_origin, side);
-                    let collider = if i == 0 {
-                        collider.mass(PART_MASS)
-                    } else {
-                        collider.density(0.0)
-                    };
-                    world.insert_collider(material(collider, friction), Some(finger));
-                }
-            }
-            let links =
-                [(LINK0_BAR, PART_MASS), (LINK2_BAR, 2.0 * PART_MASS)].map(|(bar, mass)| {
-                    let link = world.insert_body(RigidBodyBuilder::dynamic().can_sleep(false));
-                    world.insert_collider(
-                        material(bar_collider(bar).mass(mass), LINK_FRICTION),
-                        Some(link),
-                    );
-                    link
-                });
-            Side {
-                side,
-                finger,
-                links,
-            }
-        });
-
-        // Each finger stays parallel to the palm and moves in its plane; each link turns on
-        // the palm at its pivot and holds the finger at its end, so the finger moves on the
-        // links' arc. Every constraint removes a freedom no other one does (a redundant set
-        // leaves the iterative solver fighting itself and the fingers tilting): the second
-        // link, equal and parallel to the first, follows the finger, holding it in the
-        // scene's parallelogram.
-        let in_plane = JointAxesMask::LIN_X | JointAxesMask::LIN_Z;
+        let sides = [1.0f32, -1.0].map(|side| Side::insert(world, side, stored_origin));
         for s in &sides {
-            world.insert_impulse_joint(
-                palm,
-                s.finger,
-                GenericJointBuilder::new(JointAxesMask::ANG_AXES | JointAxesMask::LIN_Y)
-                    .local_anchor2(-s.mirror(stored_origin))
-                    .contacts_enabled(false),
-            );
-            for (&link, pivot) in s.links.iter().zip([LINK0_PIVOT, LINK2_PIVOT]) {
-                let on_palm = s.mirror(Vector::new(pivot[0], 0.0, pivot[1]));
-                let on_finger = s.mirror(Vector::new(
-                    pivot[0] - LINK0_PIVOT[0],
-                    0.0,
-                    pivot[1] - LINK0_PIVOT[1],
-                ));
-                world.insert_impulse_joint(
-                    palm,
-                    link,
-                    RevoluteJointBuilder::new(Vector::Y)
-                        .local_anchor1(on_palm)
-                        .local_anchor2(Vector::ZERO)
-                        .contacts_enabled(false),
-                );
-                world.insert_impulse_joint(
-                    link,
-                    s.finger,
-                    GenericJointBuilder::new(in_plane)
-                        .local_anchor1(Vector::new(0.0, 0.0, -LINK_LENGTH))
-                        .local_anchor2(on_finger)
-                        .contacts_enabled(false),
-                );
-            }
+            s.join_to(world, palm, stored_origin);
         }
         // The open/close joint between the pads' inner faces: its coordinate is the gap, and
         // it keeps the fingers level with each other, as the scene's centre chain does.

@@ -73,33 +73,7 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
 
     let steps = 1usize << exponent;
     let suffix = format!("real_2p{exponent}_{side}");
-    let mut buffer = ReplayBuffer::new(
-        BufferConfig {
-            capacity: Capacity::Steps(steps),
-            ..BufferConfig::default()
-        },
-        Serving {
-            push_reward: policy::PushReward::Change,
-            sampled: vec![Primitive::Grasp],
-            successors: false,
-        },
-    )?;
-    let mut keys = Vec::with_capacity(steps);
-    let mut fill_s = 0.0;
-    for episode in 0..(steps / EPISODE) as u64 {
-        let transitions: Vec<Transition> = (0..EPISODE)
-            .map(|step| grasp(episode, step, &scenes))
-            .collect();
-        let (stored, time) = timed(|| -> Result<Vec<Key>> {
-            for t in transitions {
-                buffer.add_step(t, Some(1.0))?;
-            }
-            Ok(buffer.end_episode(episode, Some(1))?)
-        });
-        keys.extend(stored?);
-        fill_s += time.as_secs_f64();
-    }
-    anyhow::ensure!(keys.len() == steps, "the fill stored {} steps", keys.len());
+    let (mut buffer, keys, fill_s) = filled(steps, &scenes)?;
     let stored = stored_bytes(&buffer, &keys);
     put(format!("stored_bytes_per_step_{side}"), stored);
     put(format!("compression_ratio_{side}"), raw as f64 / stored);
@@ -145,6 +119,39 @@ pub(super) fn figures(side: usize, exponent: u32) -> Result<Map<String, Value>> 
         put(format!("peak_rss_mb_{suffix}"), peak);
     }
     Ok(figures)
+}
+
+/// A buffer of `steps` grasps (episodes of [`EPISODE`] over `scenes`), their keys, and the
+/// seconds the inserts took.
+fn filled(steps: usize, scenes: &[Heightmaps]) -> Result<(ReplayBuffer, Vec<Key>, f64)> {
+    let mut buffer = ReplayBuffer::new(
+        BufferConfig {
+            capacity: Capacity::Steps(steps),
+            ..BufferConfig::default()
+        },
+        Serving {
+            push_reward: policy::PushReward::Change,
+            sampled: vec![Primitive::Grasp],
+            successors: false,
+        },
+    )?;
+    let mut keys = Vec::with_capacity(steps);
+    let mut fill_s = 0.0;
+    for episode in 0..(steps / EPISODE) as u64 {
+        let transitions: Vec<Transition> = (0..EPISODE)
+            .map(|step| grasp(episode, step, scenes))
+            .collect();
+        let (stored, time) = timed(|| -> Result<Vec<Key>> {
+            for t in transitions {
+                buffer.add_step(t, Some(1.0))?;
+            }
+            Ok(buffer.end_episode(episode, Some(1))?)
+        });
+        keys.extend(stored?);
+        fill_s += time.as_secs_f64();
+    }
+    anyhow::ensure!(keys.len() == steps, "the fill stored {} steps", keys.len());
+    Ok((buffer, keys, fill_s))
 }
 
 /// Step `step` of a grasp-only episode; its last grasp picks the goal (no relabelled copies).

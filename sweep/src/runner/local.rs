@@ -76,15 +76,7 @@ pub fn run(
         dir.path().join("output").display()
     );
 
-    let signals = [(SIGINT, "INT"), (SIGTERM, "TERM")]
-        .into_iter()
-        .map(|(signal, name)| {
-            let flag = Arc::new(AtomicBool::new(false));
-            signal_hook::flag::register(signal, flag.clone())
-                .context("installing the signal handlers")?;
-            Ok((signal, name, flag))
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let signals = install_signals()?;
     // The signal passed on to the runs, once one arrived.
     let mut forwarded: Option<(i32, &str)> = None;
 
@@ -150,6 +142,24 @@ pub fn run(
             dir.resume_command(&state)
         );
     }
+    report_failures(dir, &state)
+}
+
+/// A flag per signal the sweep passes on to its runs (SIGINT, SIGTERM), set when it arrives.
+fn install_signals() -> Result<Vec<(i32, &'static str, Arc<AtomicBool>)>> {
+    [(SIGINT, "INT"), (SIGTERM, "TERM")]
+        .into_iter()
+        .map(|(signal, name)| {
+            let flag = Arc::new(AtomicBool::new(false));
+            signal_hook::flag::register(signal, flag.clone())
+                .context("installing the signal handlers")?;
+            Ok((signal, name, flag))
+        })
+        .collect()
+}
+
+/// The sweep's closing line; an error naming each failed run and where its output is.
+fn report_failures(dir: &SweepDir, state: &SweepState) -> Result<()> {
     let mut failed = Vec::new();
     for entry in &state.runs {
         if let RunState::Failed(why) = dir.run_state(entry)? {
