@@ -1,7 +1,8 @@
 //! `pushgrasp pipeline` end to end on a tiny budget: three stages in order, the first from
-//! trunks `pushgrasp pretrain` wrote and each other from the previous stage's checkpoint, a
-//! `[set]` that switches parts of the method off in every stage, a second start that skips
-//! what finished, and `inspect` joining the stages.
+//! trunks `pushgrasp pretrain` wrote and each other from the previous stage's checkpoint, the
+//! last training two nets (an ensemble's members), a `[set]` that switches parts of the
+//! method off in every stage, a second start that skips what finished, and `inspect` joining
+//! the stages.
 
 use std::process::Command;
 
@@ -39,11 +40,12 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
     let work = tempfile::tempdir().unwrap();
     let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
     let file = work.path().join("pipeline.toml");
-    let stages: String = [(1, 10), (2, 4), (3, 4)]
+    // The last stage trains two nets, an ensemble's members.
+    let stages: String = [(1, 10, 1), (2, 4, 1), (3, 4, 2)]
         .iter()
-        .map(|(n, episodes)| {
+        .map(|(n, episodes, members)| {
             format!(
-                "[[stages]]\nconfig = {:?}\nepisodes = {episodes}\n",
+                "[[stages]]\nconfig = {:?}\nepisodes = {episodes}\nmembers = {members}\n",
                 configs.join(format!("stage{n}.toml"))
             )
         })
@@ -110,11 +112,33 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
         }
     }
 
-    // Started again, it finds every stage done.
+    // Stage 3's second net: the same start, a seed of its own; the two tested as one.
+    let second = dir.join("stage3-member2");
+    let config = |run: &str| -> toml::Table {
+        toml::from_str(&std::fs::read_to_string(dir.join(run).join("config.toml")).unwrap())
+            .unwrap()
+    };
+    let (first_config, second_config) = (config("stage3"), config("stage3-member2"));
+    assert_eq!(
+        second_config["seed"].as_integer().unwrap(),
+        first_config["seed"].as_integer().unwrap() + 1000
+    );
+    assert_eq!(second_config["init_from"], first_config["init_from"]);
+    assert!(second.join("summary.json").exists());
+    assert!(
+        said.contains(&format!(
+            "--checkpoint {} --ensemble {}",
+            dir.join("stage3/checkpoint").display(),
+            second.join("checkpoint").display()
+        )),
+        "{said}"
+    );
+
+    // Started again, it finds every run done.
     let again = pipeline(&file, &logs);
     assert_eq!(
         again.matches("finished before, skipped").count(),
-        3,
+        4,
         "{again}"
     );
 

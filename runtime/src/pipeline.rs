@@ -64,6 +64,29 @@ struct StageEntry {
     /// Settings for this stage alone, under the file's `[set]` and `--set`.
     #[serde(default)]
     set: toml::Table,
+    /// Nets trained for the last stage from the same start, each with a seed of its own
+    /// ([`member_seed`]); `eval --ensemble` tests them as one.
+    #[serde(default = "one")]
+    members: u32,
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// Ensemble member `member`'s (1, 2, ...) seed: the first keeps the stage's own; the others
+/// lie far from it, so that pipelines started at consecutive seeds share no member's seed.
+fn member_seed(seed: u64, member: u32) -> u64 {
+    seed.wrapping_add(1000 * u64::from(member - 1))
+}
+
+/// Ensemble member `member`'s run id: the first is the stage's own (`stage3`), the others
+/// `stage3-member2`, ...
+fn member_run_id(stage: u8, member: u32) -> String {
+    match member {
+        1 => format!("stage{stage}"),
+        _ => format!("stage{stage}-member{member}"),
+    }
 }
 
 /// A stage's config: the file named and, with a `[set]`, the text it resolves to.
@@ -82,6 +105,17 @@ impl PipelineFile {
             toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         if file.stages.is_empty() {
             bail!("{}: stages: at least one stage", path.display());
+        }
+        let last = file.stages.len() - 1;
+        for (i, stage) in file.stages.iter().enumerate() {
+            if stage.members == 0 || (stage.members > 1 && i != last) {
+                bail!(
+                    "{}: stages[{i}].members = {}: at least 1, and more only for the last stage \
+                     (a stage after it starts from one checkpoint)",
+                    path.display(),
+                    stage.members
+                );
+            }
         }
         Ok(file)
     }
@@ -132,68 +166,32 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let started = std::time::Instant::now();
     let mut previous: Option<PathBuf> = None;
+    let mut members = Vec::new();
     let mut lines = Vec::new();
-    for Stage {
-        path,
-        resolved,
-        config,
-        entry,
-    } in &stages
-    {
-        let run_id = format!("stage{}", config.stage);
-        let run_dir = RunDir::in_logs(&dir, &run_id);
+    for stage in &stages {
         // A [set] pipeline trains on its resolved configs, kept beside the stages.
-        let path = match resolved {
+        let path = match &stage.resolved {
             Some(text) => {
-                let out = dir.join(format!("{run_id}.toml"));
+                let out = dir.join(format!("stage{}.toml", stage.config.stage));
                 std::fs::write(&out, text).with_context(|| format!("writing {}", out.display()))?;
                 out
             }
-            None => path.clone(),
+            None => stage.path.clone(),
         };
-        let finished = Summary::read(&run_dir)?.is_some_and(|s| s.finished());
-        if finished {
-            println!("{run_id}: finished before, skipped");
-        } else {
-            let mut command = Command::new(std::env::current_exe()?);
-            command
-                .arg("train")
-                .arg("--config")
-                .arg(&path)
-                .arg("--logs")
-                .arg(&dir)
-                .args(["--run-id", &run_id]);
-            if run_dir.holds_run() {
-                command.arg("--resume");
-            } else if let Some(checkpoint) = &previous {
-                command.arg("--init-from").arg(checkpoint);
-            }
-            if let Some(episodes) = entry.episodes {
-                command.args(["--episodes", &episodes.to_string()]);
-            }
-            if args.threads {
-                command.arg("--threads");
-            }
-            println!("{run_id}: {}", path.display());
-            let status = command.status().context("starting train")?;
-            if !status.success() {
-                bail!(
-                    "{run_id} ({}) failed ({status}); its logs are in {}; run the pipeline \
-                     again with --id {id} to continue",
-                    path.display(),
-                    run_dir.path().display()
-                );
-            }
+        members.clear();
+        for member in 1..=stage.entry.members {
+            let run = StageRun {
+                run_id: member_run_id(stage.config.stage, member),
+                seed: (member > 1).then(|| member_seed(stage.config.seed, member)),
+                config: &path,
+                episodes: stage.entry.episodes,
+                init_from: previous.as_deref(),
+            };
+            let (checkpoint, line) = run.run(&dir, &id, args.threads)?;
+            lines.push(line);
+            members.push(checkpoint);
         }
-        let summary = Summary::read(&run_dir)?
-            .with_context(|| format!("{}: no summary", run_dir.path().display()))?;
-        lines.push(format!(
-            "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
-            summary.buffer.episodes,
-            percent(summary.buffer.success_last30),
-            summary.wall_s
-        ));
-        previous = Some(run_dir.checkpoint());
+        previous = members.first().cloned();
     }
     println!(
         "pipeline {id} done in {:.0} s ({})",
@@ -203,13 +201,84 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
     for line in lines {
         println!("  {line}");
     }
-    if let Some(checkpoint) = previous {
+    if let Some((first, others)) = members.split_first() {
+        let ensemble: String = others
+            .iter()
+            .map(|c| format!(" --ensemble {}", c.display()))
+            .collect();
         println!(
-            "test it: pushgrasp eval --checkpoint {} --arrangements configs/arrangements --random 30",
-            checkpoint.display()
+            "test it: pushgrasp eval --checkpoint {}{ensemble} --arrangements configs/arrangements --random 30",
+            first.display()
         );
     }
     Ok(())
+}
+
+/// One `pushgrasp train` run of a pipeline's stage (one ensemble member).
+struct StageRun<'a> {
+    run_id: String,
+    /// A seed in place of the config's (the ensemble's later members).
+    seed: Option<u64>,
+    config: &'a Path,
+    episodes: Option<u64>,
+    /// The previous stage's checkpoint.
+    init_from: Option<&'a Path>,
+}
+
+impl StageRun<'_> {
+    /// Trains it in `dir` (skipped if it finished before, resumed if it was cut short);
+    /// its checkpoint and the pipeline's closing line about it.
+    fn run(&self, dir: &Path, id: &str, threads: bool) -> Result<(PathBuf, String)> {
+        let run_id = &self.run_id;
+        let run_dir = RunDir::in_logs(dir, run_id);
+        let finished = Summary::read(&run_dir)?.is_some_and(|s| s.finished());
+        if finished {
+            println!("{run_id}: finished before, skipped");
+        } else {
+            let mut command = Command::new(std::env::current_exe()?);
+            command
+                .arg("train")
+                .arg("--config")
+                .arg(self.config)
+                .arg("--logs")
+                .arg(dir)
+                .args(["--run-id", run_id]);
+            if let Some(seed) = self.seed {
+                command.args(["--set", &format!("seed={seed}")]);
+            }
+            if run_dir.holds_run() {
+                command.arg("--resume");
+            } else if let Some(checkpoint) = self.init_from {
+                command.arg("--init-from").arg(checkpoint);
+            }
+            if let Some(episodes) = self.episodes {
+                command.args(["--episodes", &episodes.to_string()]);
+            }
+            if threads {
+                command.arg("--threads");
+            }
+            let seed = self.seed.map(|s| format!(", seed {s}")).unwrap_or_default();
+            println!("{run_id}: {}{seed}", self.config.display());
+            let status = command.status().context("starting train")?;
+            if !status.success() {
+                bail!(
+                    "{run_id} ({}) failed ({status}); its logs are in {}; run the pipeline \
+                     again with --id {id} to continue",
+                    self.config.display(),
+                    run_dir.path().display()
+                );
+            }
+        }
+        let summary = Summary::read(&run_dir)?
+            .with_context(|| format!("{}: no summary", run_dir.path().display()))?;
+        let line = format!(
+            "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
+            summary.buffer.episodes,
+            percent(summary.buffer.success_last30),
+            summary.wall_s
+        );
+        Ok((run_dir.checkpoint(), line))
+    }
 }
 
 #[cfg(test)]
@@ -265,6 +334,16 @@ mod tests {
         let (one, two) = (&stages[0].config, &stages[1].config);
         assert_eq!((one.grasp_trials, one.seed), (3, 7));
         assert_eq!((two.grasp_trials, two.seed), (0, 7));
+        // Several nets only for the last stage: a later one starts from one checkpoint.
+        write(
+            "[[stages]]\nconfig = \"stage1.toml\"\nmembers = 2\n\
+             [[stages]]\nconfig = \"stage2.toml\"\n",
+        );
+        let err = PipelineFile::load(&path).err().unwrap().to_string();
+        assert!(err.contains("stages[0].members = 2"), "{err}");
+        write("[[stages]]\nconfig = \"stage2.toml\"\nmembers = 0\n");
+        let err = PipelineFile::load(&path).err().unwrap().to_string();
+        assert!(err.contains("stages[0].members = 0"), "{err}");
         // Stage 2 freezes the grasp net: trials there are refused, naming the stage's file.
         write("[[stages]]\nconfig = \"stage2.toml\"\nset = { grasp_trials = 3 }\n");
         let file = PipelineFile::load(&path).unwrap();
