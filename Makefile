@@ -2,7 +2,7 @@
 CARGO ?= cargo
 SHARED ?= ../shared
 
-.PHONY: run test test-gpu bench soak lint fmt arrangements
+.PHONY: run test test-gpu gpu-bench bench soak lint fmt arrangements
 
 # The main job: a scaled-down stage-1 training run (goal-conditioned grasping) on the CPU:
 # a buffer, a learner and 2 actor processes over shared memory, about 45 s after the build;
@@ -28,6 +28,14 @@ test:
 test-gpu:
 	tests/vulkan/install.sh
 	PUSHGRASP_TUNE_CACHE=$(CURDIR)/target/tune $(CARGO) test --release --features wgpu --test wgpu --test tune
+
+# Every GPU figure in one go on a GPU host, within about 8 minutes, into gpu-figures.json
+# (`pushgrasp bench gpu`). PUSHGRASP_BIN names a wgpu build made beforehand (a GPU host's
+# minutes are too few to build one); without it, one is built here.
+gpu-bench:
+	@bin="$(PUSHGRASP_BIN)"; \
+	if [ -z "$$bin" ]; then $(CARGO) build --release --features wgpu && bin=target/release/pushgrasp; fi; \
+	PUSHGRASP_TUNE_CACHE=$${PUSHGRASP_TUNE_CACHE:-$(CURDIR)/target/tune} "$$bin" bench gpu --out gpu-figures.json
 
 # The peers run beside ours when they can be installed (into target/): onnxruntime and numpy
 # beside the nets (bench learner), cpprb beside the replay (bench buffer). PyTorch's training

@@ -156,6 +156,55 @@ fn both_nets_give_the_cpus_q_maps_over_16_rotations() {
     }
 }
 
+/// The kernels one net's Q maps launch on the device, for 1 rotation and for all 16, and
+/// those of a training step on 1 sample and on 8 at 8 rotations: the rotations and the
+/// samples are one batch, so more of them must not mean more kernels (a pass per rotation
+/// would launch 16 times as many).
+#[test]
+fn the_rotations_and_a_batchs_samples_launch_the_kernels_of_one() {
+    let _turn = device_turn();
+    let gpu = gpu();
+    let input = scene_input(0);
+    for net in net_shapes() {
+        let geometry = qnet::Geometry::new(input.side, &net);
+        let nets = on(&gpu, &net, &trained_on_cpu(&net, &input));
+        let acting = ActingNets::new(&nets).unwrap();
+        let kernels = |rotations: &[u8]| {
+            let call = || acting.rotations(Primitive::Grasp, &input, rotations, &geometry);
+            let (maps, launches) = qnet::kernels::count(&gpu, call);
+            maps.unwrap();
+            launches.expect("a wgpu device counts its launches").total()
+        };
+        // The first call compiles and lays out what the later ones reuse.
+        kernels(&[0]);
+        let all: Vec<u8> = (0..16).collect();
+        let (one, sixteen) = (kernels(&[0]), kernels(&all));
+        let mut trainer = trainer(nets, &net, input.side, &gpu);
+        let mut step = |n: usize| {
+            let batch = samples(&input, n);
+            let (report, launches) = qnet::kernels::count(&gpu, || trainer.train_step(&batch));
+            report.unwrap();
+            launches.unwrap().total()
+        };
+        step(8);
+        let (single, eight) = (step(1), step(8));
+        println!(
+            "context {:?}, equivariant {}: Q maps {one} kernels for 1 rotation, {sixteen} \
+             for 16; a training step {single} for 1 sample, {eight} for 8",
+            net.context_dilations, net.rotation_equivariant
+        );
+        assert!(one > 0 && single > 0);
+        assert!(
+            sixteen < 2 * one,
+            "{sixteen} kernels for 16 rotations, {one} for 1"
+        );
+        assert!(
+            eight < 2 * single,
+            "{eight} kernels for 8 samples, {single} for 1"
+        );
+    }
+}
+
 /// Every float tensor of a module (weights, biases, batch-norm scales, shifts and running
 /// statistics), in visiting order.
 #[derive(Default)]
@@ -427,6 +476,8 @@ fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
         "--no-peer",
         "--sides",
         "112",
+        "--peak-side",
+        "128",
     ]);
     let figures: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
     println!("{figures}");
@@ -435,6 +486,11 @@ fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
     let diff = figures["max_rel_diff_vs_cpu_112"].as_f64().unwrap();
     assert!(diff <= f64::from(AGREEMENT), "{diff}");
     assert!(figures["batch_train_speedup_vs_cpu_112"].as_f64().unwrap() > 0.0);
+    // The kernels each timed call launches, counted as CubeCL issues them.
+    for call in ["infer_16rot", "train_step", "batch_train", "publish"] {
+        let kernels = figures[format!("{call}_kernels_112")].as_f64();
+        assert!(kernels.is_some_and(|k| k >= 1.0), "{call}: {kernels:?}");
+    }
     // The host's CPU a step, by part: each part's threads found by their names.
     for part in ["fusion", "server", "other"] {
         let ms = figures[format!("batch_train_{part}_cpu_ms_112")].as_f64();
@@ -487,6 +543,107 @@ fn the_end_to_end_bench_runs_the_gpu_learner_beside_the_cpus() {
 
     let refused = pushgrasp_fails(&["bench", "e2e", "--learners", "cuda"]);
     assert!(refused.contains("cpu or wgpu"), "{refused}");
+}
+
+/// `bench gpu`, the script for a GPU host, end to end with its sizes cut down: every
+/// benchmark's figures in one file, each run's status beside them.
+#[test]
+fn the_gpu_bench_puts_every_figure_into_one_file() {
+    let _turn = device_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("gpu.json");
+    pushgrasp_ok(&[
+        "bench",
+        "gpu",
+        "--out",
+        out.to_str().unwrap(),
+        "--side",
+        "56",
+        "--paper-side",
+        "56",
+        "--reps",
+        "1",
+        "--e2e-episodes",
+        "4",
+        "--e2e-environments",
+        "1",
+        "--max-tasks",
+        "16",
+        // Cut down for a software device: the stage nets stand in for the paper-size ones.
+        "--paper-config",
+        "configs/stage1.toml",
+        "--peak-side",
+        "128",
+    ]);
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    println!("{file:#}");
+    let runs = file["runs"].as_array().unwrap();
+    let names: Vec<&str> = runs.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    let learners = [
+        "learner",
+        "learner_stage",
+        "learner_paper_size",
+        "learner_max_tasks_16",
+    ];
+    assert_eq!(names.len(), 5, "{names:?}");
+    for run in runs {
+        assert_eq!(run["status"], "done", "{run}");
+    }
+    for name in learners {
+        let figures = &file[name];
+        assert_eq!(figures["backend"], "wgpu", "{name}");
+        for figure in [
+            "batch_train_step_ms_56",
+            "batch_train_kernels_56",
+            "infer_16rot_kernels_56",
+        ] {
+            assert!(
+                figures[figure].as_f64().is_some_and(|v| v > 0.0),
+                "{name}: {figure}"
+            );
+        }
+    }
+    assert_eq!(
+        file["learner_paper_size"]["trunk_widths"],
+        serde_json::json!([8, 16])
+    );
+    // Too short a run for its learners to update (the test above runs one that does).
+    assert_eq!(file["e2e"]["episodes_per_run"], 4);
+    assert!(
+        file["e2e"]["actions_per_s_1_wgpu"]
+            .as_f64()
+            .is_some_and(|v| v > 0.0)
+    );
+    let tasks = &runs[4]["env"][0];
+    assert_eq!(tasks, "CUBECL_WGPU_MAX_TASKS=16");
+
+    // A budget spent: the running benchmark stopped, the rest skipped, the file written.
+    pushgrasp_ok(&[
+        "bench",
+        "gpu",
+        "--out",
+        out.to_str().unwrap(),
+        "--budget-s",
+        "1",
+    ]);
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let statuses: Vec<&str> = file["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["status"].as_str().unwrap())
+        .collect();
+    assert!(
+        statuses[0].starts_with("stopped at the budget's end"),
+        "{statuses:?}"
+    );
+    assert!(
+        statuses[1..].iter().all(|s| s.starts_with("skipped")),
+        "{statuses:?}"
+    );
+    assert!(file.get("learner").is_none());
 }
 
 /// What `train` with its actors on wgpu says, under `env`, when it is refused before

@@ -9,6 +9,7 @@ use runtime::stopwatch::status_mb;
 use sim::{Camera, Heightmaps, SimConfig, Tabletop};
 
 mod e2e;
+mod gpu;
 mod hosts;
 mod logging;
 mod nets;
@@ -50,6 +51,10 @@ pub enum BenchCommand {
     /// Memory over a long run: every process's resident memory while a stage-3 run goes on
     /// for 20 minutes after its replay is full, and its growth beside a 5% bound.
     Soak(soak::SoakBenchArgs),
+    /// Every GPU figure in one go, into one JSON file (a wgpu build, on a GPU host): the
+    /// learner at the shipped, the stage and the paper-size nets, a real run with each
+    /// learner, and CubeCL's task batching varied; each within its share of one budget.
+    Gpu(gpu::GpuBenchArgs),
 }
 
 pub fn run(command: BenchCommand) -> Result<()> {
@@ -62,6 +67,7 @@ pub fn run(command: BenchCommand) -> Result<()> {
         BenchCommand::Transport(args) => transport::bench_transport(&args),
         BenchCommand::Hosts(args) => hosts::bench_hosts(&args),
         BenchCommand::Soak(args) => soak::bench_soak(&args),
+        BenchCommand::Gpu(args) => gpu::bench_gpu(&args),
     }
 }
 

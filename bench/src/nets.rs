@@ -45,6 +45,14 @@ pub struct LearnerBenchArgs {
     /// Heightmap sides timed (pixels; the workspace is divided into side x side).
     #[arg(long, value_delimiter = ',', default_values_t = [112, 224])]
     sides: Vec<u32>,
+    /// With the kernel counts of a GPU backend, each call's kernels by name
+    /// (`<call>_kernel_names_<side>`, most launched first).
+    #[arg(long)]
+    kernel_names: bool,
+    /// Side of the square matrices whose product gives `matmul_peak_gflops` (a software
+    /// device takes tens of seconds at the default).
+    #[arg(long, default_value_t = 1024)]
+    peak_side: usize,
 }
 
 pub fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
@@ -66,7 +74,7 @@ pub fn bench_learner(args: &LearnerBenchArgs) -> Result<()> {
     }
     figures.insert(
         "matmul_peak_gflops".into(),
-        matmul_peak_gflops(&run.device, run.reps).into(),
+        matmul_peak_gflops(&run.device, args.peak_side, run.reps).into(),
     );
     peers.report(args.no_peer, &mut figures);
     print_figures(&Value::Object(figures), args.json)
@@ -137,7 +145,55 @@ impl Run<'_> {
         if self.args.backend == Backend::Cpu && !self.args.no_peer {
             peers.torch(&s, rotated, &training, gflop_batch_train, &mut put);
         }
-        Ok(())
+        self.kernel_figures(&s, &mut trainer, &mut put)
+    }
+
+    /// The kernels that one more of each timed call launches, on a GPU backend (the host's
+    /// share of a GPU step grows with them); nothing on the CPU.
+    fn kernel_figures(
+        &self,
+        s: &SideNets,
+        trainer: &mut Trainer,
+        put: &mut SideFigures,
+    ) -> Result<()> {
+        let mut count = |call_name: &str, call: &mut dyn FnMut() -> Result<()>| {
+            let (done, launches) = qnet::kernels::count(&self.device, call);
+            if let Some(launches) = launches {
+                put.put(&format!("{call_name}_kernels"), launches.total() as f64);
+                if self.args.kernel_names {
+                    let names = launches
+                        .by_name()
+                        .iter()
+                        .map(|(n, k)| (n.clone(), (*k).into()));
+                    put.put_value(
+                        &format!("{call_name}_kernel_names"),
+                        Value::Object(names.collect()),
+                    );
+                }
+            }
+            done
+        };
+        let primitives = [Primitive::Push, Primitive::Grasp];
+        count("infer_16rot", &mut || {
+            s.acting
+                .all_rotations_of_each(primitives, &[&s.input], &s.geometry)
+                .map(drop)
+                .map_err(Into::into)
+        })?;
+        let [one, eight] = [1, 8].map(|batch| samples(s, batch));
+        count("train_step", &mut || {
+            trainer.train_step(&one).map(drop).map_err(Into::into)
+        })?;
+        count("batch_train", &mut || {
+            trainer.train_step(&eight).map(drop).map_err(Into::into)
+        })?;
+        count("publish", &mut || {
+            trainer
+                .published_nets()
+                .to_bytes()
+                .map(drop)
+                .map_err(Into::into)
+        })
     }
 
     /// The nets at side `side` and the trainer of the grasp net.
@@ -313,9 +369,8 @@ impl Run<'_> {
 }
 
 /// The backend's rate on a large square matrix product, the ceiling for the nets.
-fn matmul_peak_gflops(device: &burn::tensor::Device, reps: usize) -> f64 {
+fn matmul_peak_gflops(device: &burn::tensor::Device, n: usize, reps: usize) -> f64 {
     use burn::tensor::{Distribution, Tensor};
-    let n = 1024;
     let a = Tensor::<2>::random([n, n], Distribution::Default, device);
     let b = Tensor::<2>::random([n, n], Distribution::Default, device);
     // A value read back: a GPU backend only queues the product.

@@ -23,6 +23,7 @@ pub mod geometry;
 mod host_copy;
 pub mod inference;
 pub mod input;
+pub mod kernels;
 pub mod layers;
 pub mod net;
 pub mod qnets;

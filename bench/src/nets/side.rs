@@ -29,8 +29,11 @@ pub(super) struct SideFigures<'a> {
 
 impl SideFigures<'_> {
     pub(super) fn put(&mut self, name: &str, value: f64) {
-        self.figures
-            .insert(format!("{name}{}", self.suffix), value.into());
+        self.put_value(name, value.into());
+    }
+
+    pub(super) fn put_value(&mut self, name: &str, value: Value) {
+        self.figures.insert(format!("{name}{}", self.suffix), value);
     }
 }
 
