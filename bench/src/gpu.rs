@@ -89,7 +89,7 @@ pub fn bench_gpu(args: &GpuBenchArgs) -> Result<()> {
         }));
         let mut file = figures.clone();
         file.insert("runs".into(), Value::Array(runs.clone()));
-        write_json(&args.out, &Value::Object(file))?;
+        rundir::write_json(&args.out, &Value::Object(file))?;
     }
     println!("{}", args.out.display());
     Ok(())
@@ -100,11 +100,17 @@ pub fn bench_gpu(args: &GpuBenchArgs) -> Result<()> {
 /// `CUBECL_WGPU_MAX_TASKS`.
 fn benches(args: &GpuBenchArgs) -> Vec<Bench> {
     let learner = |sides: usize, reps: usize, config: Option<&Path>| {
-        let mut a: Vec<String> = ["bench", "learner", "--backend", "wgpu", "--no-peer"]
-            .into_iter()
-            .chain(["--json", "--kernel-names"])
-            .map(String::from)
-            .collect();
+        let mut a = [
+            "bench",
+            "learner",
+            "--backend",
+            "wgpu",
+            "--no-peer",
+            "--json",
+            "--kernel-names",
+        ]
+        .map(String::from)
+        .to_vec();
         for (arg, value) in [
             ("--sides", sides),
             ("--reps", reps),
@@ -218,12 +224,4 @@ fn run(bench: &Bench, deadline: Duration) -> Result<Outcome> {
             _ => Outcome::Failed(format!("no JSON figures in its output: {out:?}")),
         },
     })
-}
-
-/// Writes `value` to `path` whole: a reader never finds half a file.
-fn write_json(path: &Path, value: &Value) -> Result<()> {
-    let partial = path.with_extension("json.partial");
-    std::fs::write(&partial, serde_json::to_string_pretty(value)? + "\n")
-        .with_context(|| format!("writing {}", partial.display()))?;
-    std::fs::rename(&partial, path).with_context(|| format!("writing {}", path.display()))
 }
