@@ -593,6 +593,12 @@ fn the_gpu_bench_puts_every_figure_into_one_file() {
     for name in learners {
         let figures = &file[name];
         assert_eq!(figures["backend"], "wgpu", "{name}");
+        // PyTorch's step on CUDA beside ours, or why it did not run (no CUDA here).
+        let torch = figures["torch"].as_str();
+        assert!(
+            figures["torch_device"].is_string() || torch.is_some_and(|t| t.starts_with("not run")),
+            "{name}: {figures}"
+        );
         for figure in [
             "batch_train_step_ms_56",
             "batch_train_kernels_56",

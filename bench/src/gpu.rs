@@ -105,7 +105,6 @@ fn benches(args: &GpuBenchArgs) -> Vec<Bench> {
             "learner",
             "--backend",
             "wgpu",
-            "--no-peer",
             "--json",
             "--kernel-names",
         ]

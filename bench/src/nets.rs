@@ -142,8 +142,13 @@ impl Run<'_> {
             self.versus_cpu(&s, &training, &mut put)?;
         }
         let gflop_batch_train = self.flop_figures(&s, infer, &training, &mut put);
-        if self.args.backend == Backend::Cpu && !self.args.no_peer {
-            peers.torch(&s, rotated, &training, gflop_batch_train, &mut put);
+        if !self.args.no_peer {
+            // Beside a GPU backend, PyTorch steps on CUDA: the GPU step ours is measured against.
+            let device = match self.args.backend {
+                Backend::Cpu => "cpu",
+                Backend::Wgpu => "cuda",
+            };
+            peers.torch(&s, rotated, &training, gflop_batch_train, device, &mut put);
         }
         self.kernel_figures(&s, &mut trainer, &mut put)
     }

@@ -68,10 +68,13 @@ pub struct TrainingPeerRun<'a> {
     pub ours: &'a StepReport,
     pub reps: usize,
     pub threads: usize,
+    /// Where PyTorch steps: `cpu`, or `cuda` beside a GPU backend of ours.
+    pub device: &'a str,
 }
 
 /// Runs [`TORCH_SCRIPT`]: `torch_train_step_ms` and `torch_batch_train_step_ms` (medians),
-/// `torch_max_rel_diff` (its first batch step's loss and Q values from ours), and its version.
+/// `torch_max_rel_diff` (its first batch step's loss and Q values from ours), its version and
+/// the device it ran on.
 /// A grasp teaches its rotation and the symmetric one (the learner's items, in its order);
 /// what the peer's graph does not build is refused: an equivariant net (its items share
 /// passes), an outcome head (a second loss), mirrored or translated items.
@@ -128,6 +131,7 @@ pub fn torch_figures(python: &Path, run: &TrainingPeerRun) -> Result<Map<String,
         "ours_q": run.ours.predicted,
         "reps": run.reps,
         "threads": run.threads,
+        "device": run.device,
     });
     let dir = tempfile::tempdir().context("a directory for the training peer's inputs")?;
     std::fs::write(dir.path().join("training.json"), serde_json::to_vec(&spec)?)?;
@@ -255,12 +259,25 @@ import torch";
 /// bias, as in ours), on the weights given, in training mode (batch statistics); steps it
 /// with Adam on the weighted Huber loss of each item's Q value (its low-resolution map
 /// weighted at its pixel, as ours), first on the whole batch to check the loss and Q values
-/// against ours, then timed on the one grasp's items and the batch. Prints one JSON object.
+/// against ours, then timed on the one grasp's items and the batch. On CUDA it computes in
+/// fp32 as ours does (no TF32) and lets cuDNN pick its fastest algorithms (the warm-up step
+/// does); each timed step ends by reading its loss back, which waits for the device.
+/// Prints one JSON object.
 const TORCH_SCRIPT: &str = r#"
 folder = sys.argv[1]
 spec = json.load(open(os.path.join(folder, "training.json")))
 torch.set_num_threads(spec["threads"])
 p, s, reps = spec["padded"], spec["low_side"], spec["reps"]
+if spec["device"] == "cuda":
+    if not torch.cuda.is_available():
+        raise SystemExit("PyTorch sees no CUDA device")
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
+    torch.backends.cudnn.benchmark = True
+    device_name = torch.cuda.get_device_name()
+else:
+    device_name = "cpu"
+device = torch.device(spec["device"])
 
 def conv(layer, bias):
     out, inp, k, _ = layer["shape"]
@@ -303,16 +320,18 @@ class Net(torch.nn.Module):
         features = torch.cat([t(x) for t, x in zip(self.trunks, planes)], 1)
         return self.head(self.fused(features))
 
-net = Net(spec["net"]).train()
+net = Net(spec["net"]).train().to(device)
 optimiser = torch.optim.Adam(net.parameters(), lr=spec["learning_rate"], betas=spec["betas"],
                              eps=1e-5, weight_decay=spec["weight_decay"])
 rotations = torch.tensor(spec["rotations"])
 planes = [torch.from_numpy(np.fromfile(os.path.join(folder, f"{name}.f32"), dtype="<f4")
                            .reshape(16, c, p, p))[rotations]
           for name, c in (("colour", 3), ("depth", 1), ("mask", 1))]
+planes = [x.to(device) for x in planes]
 pixel = torch.from_numpy(np.fromfile(os.path.join(folder, "pixel_weights.f32"), dtype="<f4")
-                         .reshape(len(rotations), s, s))
-labels, weights = torch.tensor(spec["labels"]), torch.tensor(spec["weights"])
+                         .reshape(len(rotations), s, s)).to(device)
+labels = torch.tensor(spec["labels"], device=device)
+weights = torch.tensor(spec["weights"], device=device)
 
 def batch(n):
     return [[x[:n].contiguous() for x in planes]] + [t[:n].contiguous()
@@ -326,7 +345,7 @@ def step(inputs, at_pixel, targets, importance):
     optimiser.zero_grad(set_to_none=True)
     loss.backward()
     optimiser.step()
-    return q.detach().numpy(), float(loss)
+    return q.detach().cpu().numpy(), float(loss)
 
 def median_ms(inputs):
     step(*inputs)
@@ -346,6 +365,7 @@ worst = max(float(np.abs(q[::per_sample] - ours_q).max()) / scale,
             abs(loss - spec["ours_loss"]) / max(abs(spec["ours_loss"]), 1e-30))
 print(json.dumps({
     "torch_version": torch.__version__,
+    "torch_device": device_name,
     "torch_max_rel_diff": worst,
     "torch_train_step_ms": median_ms(batch(spec["one_grasp_items"])),
     "torch_batch_train_step_ms": median_ms(whole),

@@ -18,6 +18,7 @@ pub(super) struct Peers {
     figures: Map<String, Value>,
     missing: Option<String>,
     torch_version: Option<Value>,
+    torch_device: Option<Value>,
     torch_missing: Option<String>,
 }
 
@@ -30,6 +31,7 @@ impl Peers {
             figures: Map::new(),
             missing: None,
             torch_version: None,
+            torch_device: None,
             torch_missing: None,
         }
     }
@@ -77,6 +79,7 @@ impl Peers {
         rotated: [&[f32]; 3],
         training: &Training,
         gflop_batch_train: f64,
+        device: &str,
         put: &mut SideFigures,
     ) {
         let (learning, batch) = (LearningConfig::default(), samples(s, 8));
@@ -89,6 +92,7 @@ impl Peers {
             ours: &training.first_batch,
             reps: self.reps,
             threads: rayon::current_num_threads(),
+            device,
         };
         match peer::torch_figures(&self.python, &run) {
             Ok(peer) => {
@@ -103,6 +107,7 @@ impl Peers {
                 );
                 put.put("torch_max_rel_diff", figure("torch_max_rel_diff"));
                 self.torch_version = peer.get("torch_version").cloned();
+                self.torch_device = peer.get("torch_device").cloned();
             }
             Err(why) => self.torch_missing = Some(format!("{why:#}")),
         }
@@ -134,6 +139,9 @@ impl Peers {
         }
         if let Some(version) = self.torch_version {
             figures.insert("torch_version".into(), version);
+        }
+        if let Some(device) = self.torch_device {
+            figures.insert("torch_device".into(), device);
         }
         if let Some(why) = self.torch_missing {
             eprintln!(
