@@ -233,12 +233,19 @@ fn assert_cpu_times(summary: &Value, own_processes: bool) {
     }
 }
 
-/// The learner's time updating is some of its working time, not more.
+/// The learner's time updating is some of its working time, not more; its steps, its
+/// publications and its checkpoints are some of that.
 fn assert_learner_busy(summary: &Value) {
     let learner = &summary["learner"];
-    let busy_s = learner["busy_s"].as_f64().unwrap();
-    let training_s = learner["training_s"].as_f64().unwrap();
+    let seconds = |key: &str| learner[key].as_f64().unwrap();
+    let (busy_s, training_s) = (seconds("busy_s"), seconds("training_s"));
     assert!(busy_s > 0.0 && busy_s <= training_s, "{learner}");
+    let parts = ["step_s", "publish_s", "checkpoint_s"].map(seconds);
+    assert!(
+        parts[0] > 0.0 && parts.iter().all(|&s| s >= 0.0),
+        "{learner}"
+    );
+    assert!(parts.iter().sum::<f64>() <= busy_s, "{learner}");
 }
 
 #[test]

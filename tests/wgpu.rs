@@ -534,6 +534,9 @@ fn the_end_to_end_bench_runs_the_gpu_learner_beside_the_cpus() {
                 >= figure(&format!("learner_updates_per_s{learner}")),
             "{figures}"
         );
+        // An update's busy time by part, the step's above nothing.
+        assert!(figure(&format!("learner_step_ms_per_update{learner}")) > 0.0);
+        assert!(figure(&format!("learner_rest_ms_per_update{learner}")) >= 0.0);
     }
     assert!(figure("learner_busy_share_1_wgpu") > 0.9, "{figures}");
     let speedup = figure("learner_speedup_1");

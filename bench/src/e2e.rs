@@ -3,8 +3,9 @@
 //! a process (`--envs-per-actor`), and with each learner backend asked for (`--learners`);
 //! actions per second summed over the environments (each one's actions over its own acting
 //! time, so process start-up is left out) and the learner's updates per second, the share
-//! of its time it spent updating (the rest it waited on the actors) and its updates per
-//! second of that time, read from the runs' reports; what an action and an update cost in
+//! of its time it spent updating (the rest it waited on the actors), its updates per
+//! second of that time and an update's share of it by part (the step, the publication, the
+//! checkpoints, the rest), read from the runs' reports; what an action and an update cost in
 //! CPU time (each role's process over the same time), which leaves out the time a role
 //! waits: on the rate limiter, or for a core the other roles hold; and the actors' peak
 //! resident memory per environment.
@@ -130,6 +131,22 @@ fn put_run(
     put(
         "learner_updates_per_busy_s",
         learner.updates_per_busy_s().unwrap_or(0.0),
+    );
+    // An update's busy time by part: which of them a faster backend has to shorten.
+    let per_update_ms = |s: f64| 1e3 * s / (learner.session_updates.max(1) as f64);
+    let parts = learner.step_s + learner.publish_s + learner.checkpoint_s;
+    put("learner_step_ms_per_update", per_update_ms(learner.step_s));
+    put(
+        "learner_publish_ms_per_update",
+        per_update_ms(learner.publish_s),
+    );
+    put(
+        "learner_checkpoint_ms_per_update",
+        per_update_ms(learner.checkpoint_s),
+    );
+    put(
+        "learner_rest_ms_per_update",
+        per_update_ms(learner.busy_s - parts),
     );
     let reports = summary["actors_reports"]
         .as_array()

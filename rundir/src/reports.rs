@@ -130,6 +130,19 @@ pub struct LearnerReport {
     /// whatever the actors do.
     #[serde(default)]
     pub busy_s: f64,
+    /// Of `busy_s`, the training steps (`Trainer::train_step`: the batch to the nets' device,
+    /// the forward pass, the read of its values). On a GPU backend the backward pass and the
+    /// optimiser may still be running when it returns; the next read waits for them, which
+    /// is then the publication's.
+    #[serde(default)]
+    pub step_s: f64,
+    /// Of `busy_s`, publishing the weights (reading them off the nets' device, sending them).
+    #[serde(default)]
+    pub publish_s: f64,
+    /// Of `busy_s`, writing checkpoints. The rest of `busy_s` unpacks each batch, values its
+    /// next states where the learner does, logs the update and sends the priorities.
+    #[serde(default)]
+    pub checkpoint_s: f64,
     /// CPU seconds the learner's process used over `training_s`, all its threads (none for a
     /// learner in a thread of the launcher, whose process the other roles share).
     #[serde(default, skip_serializing_if = "Option::is_none")]

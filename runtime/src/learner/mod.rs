@@ -263,10 +263,14 @@ impl<'a> LearnerRole<'a> {
         ports.requests.send(&Message::PriorityUpdate(priorities))?;
         let updates = self.updates();
         if updates.is_multiple_of(self.config.learner.publish_every) {
+            let publishing = Instant::now();
             self.publish(&mut ports.weights)?;
+            self.report.publish_s += publishing.elapsed().as_secs_f64();
         }
         if updates.is_multiple_of(self.config.learner.checkpoint_every) {
+            let saving = Instant::now();
             self.save_checkpoint()?;
+            self.report.checkpoint_s += saving.elapsed().as_secs_f64();
         }
         self.report.busy_s += started.elapsed().as_secs_f64();
         Ok(())
@@ -326,7 +330,9 @@ impl<'a> LearnerRole<'a> {
             .zip(self.next_values(&items)?)
             .map(|(item, next_value)| sample(&item.transition, next_value, item.weight, gamma))
             .collect();
+        let stepping = Instant::now();
         let step = self.trainer.train_step(&samples)?;
+        self.report.step_s += stepping.elapsed().as_secs_f64();
         self.report.last_loss = Some(step.loss);
         let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len().max(1) as f32;
         self.log.json(
