@@ -240,7 +240,8 @@ impl Policy {
     }
 }
 
-/// A step completed by the decision after it (`None`: its scene ended), to be shipped.
+/// A step completed by the decision after it (`None`: its scene ended, or its push lost the
+/// goal), to be shipped.
 type Completed = (Unlabelled, Option<Decision>);
 
 /// One environment of an actor process: the scene it plays on, its exploration, its
@@ -371,7 +372,7 @@ impl<'a> Environment<'a> {
         };
         if decision.action.primitive == Primitive::Push {
             let obs = self.camera.render(&self.tabletop);
-            self.unlabelled = Some(Unlabelled {
+            let push = Unlabelled {
                 push_changed: Some(detect_change(&transition.obs, &obs, goal)),
                 transition,
                 decision,
@@ -379,7 +380,14 @@ impl<'a> Environment<'a> {
                 scene_seed: self.scene_seed,
                 pictures_ns,
                 weights_version,
-            });
+            };
+            if self.config.goal_lost_ends_episode && self.tabletop.object(goal).is_none() {
+                // Nothing after this push can pick the goal: it is the episode's last step.
+                self.report.episodes += 1;
+                completed.push((push.ending_episode(), None));
+                return Ok(completed);
+            }
+            self.unlabelled = Some(push);
             self.episode = Some(Episode {
                 obs,
                 goal,
@@ -469,5 +477,106 @@ impl<'a> Environment<'a> {
             completed.push((unlabelled, Some(*decision)));
         }
         Ok(completed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use policy::Reason;
+    use sim::rapier3d::prelude::{Pose, Rotation, Vector};
+    use sim::workspace::{CENTRE, X_MAX};
+    use sim::{Action, ShapeKind};
+
+    /// An environment whose episode's goal, a lone cube, lies 3 cm inside the workspace's +x
+    /// edge.
+    fn at_the_edge<'a>(config: &'a RunConfig, log: &'a RunLog) -> Environment<'a> {
+        let id = ActorId {
+            index: 0,
+            incarnation: 0,
+        };
+        let mut env = Environment::new(config, id, log).unwrap();
+        env.tabletop = Tabletop::new(&config.sim).unwrap();
+        let pose = Pose::from_parts(
+            Vector::new(X_MAX - 0.03, CENTRE[1], 0.025),
+            Rotation::IDENTITY,
+        );
+        env.tabletop
+            .add_object(1, ShapeKind::Cube, [200, 50, 50], pose)
+            .unwrap();
+        env.tabletop.settle();
+        let obs = env.camera.render(&env.tabletop);
+        env.episode = Some(Episode {
+            obs,
+            goal: 1,
+            step: 0,
+        });
+        env
+    }
+
+    /// Pushes along +x from 7 cm before the cube, towards the edge and beyond it.
+    fn push_off(env: &mut Environment<'_>) -> Vec<Completed> {
+        let grid = env.tabletop.grid();
+        let (row, col) = grid.pixel_of(X_MAX - 0.10, CENTRE[1]).unwrap();
+        let side = grid.side();
+        let choice = Choice {
+            decision: Decision {
+                action: Action {
+                    primitive: Primitive::Push,
+                    rotation: 0,
+                    row,
+                    col,
+                },
+                predicted_q: 0.0,
+                goal_grasp_q: 0.5,
+                best_push_q: Some(0.0),
+                explored: false,
+                reason: Reason::BelowThreshold,
+                goal_visible: true,
+            },
+            grasp: QMaps::new(16, side, vec![0.0; 16 * side * side]).unwrap(),
+            push: None,
+        };
+        let completed = env.act(choice, 0).unwrap();
+        assert!(
+            env.tabletop.object(1).is_none(),
+            "the push left the goal on the table"
+        );
+        completed
+    }
+
+    #[test]
+    fn a_push_that_takes_the_goal_off_the_table_ends_its_episode_when_asked() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
+        let mut config = RunConfig::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../configs/stage2.toml"
+        )))
+        .unwrap();
+        config.logging.image_every = 0;
+
+        config.goal_lost_ends_episode = true;
+        let mut env = at_the_edge(&config, &log);
+        let completed = push_off(&mut env);
+        let [(push, next)] = completed.as_slice() else {
+            panic!("{} steps completed, not the push alone", completed.len());
+        };
+        assert!(
+            next.is_none(),
+            "a push that lost the goal bootstraps on nothing"
+        );
+        let end = push.ends.as_ref().expect("the push ends its episode");
+        assert_eq!((end.grasped, end.steps, end.trial), (None, 1, false));
+        assert!(!push.push_changed.as_ref().unwrap().detected);
+        assert!(env.episode.is_none() && env.unlabelled.is_none());
+        assert_eq!(env.report.episodes, 1);
+
+        config.goal_lost_ends_episode = false;
+        let mut env = at_the_edge(&config, &log);
+        assert!(push_off(&mut env).is_empty());
+        assert_eq!(env.episode.as_ref().map(|e| (e.goal, e.step)), Some((1, 1)));
+        assert!(env.unlabelled.as_ref().is_some_and(|p| p.ends.is_none()));
+        assert_eq!(env.report.episodes, 0);
     }
 }

@@ -61,19 +61,7 @@ impl Unlabelled {
     ) -> Self {
         transition.reward = grasp_reward(transition.grasped, transition.goal);
         Self {
-            ends: Some(EpisodeEnd {
-                // Stamped when sent.
-                origin: Origin {
-                    actor: 0,
-                    incarnation: 0,
-                    seq: 0,
-                },
-                episode: transition.episode,
-                goal: transition.goal,
-                grasped: transition.grasped,
-                steps: transition.step + 1,
-                trial,
-            }),
+            ends: Some(episode_end(&transition, trial)),
             transition,
             decision,
             push_changed: None,
@@ -81,6 +69,31 @@ impl Unlabelled {
             pictures_ns,
             weights_version,
         }
+    }
+
+    /// This step (a push that lost the goal) as its episode's last, which picked nothing.
+    pub(super) fn ending_episode(self) -> Self {
+        Self {
+            ends: Some(episode_end(&self.transition, false)),
+            ..self
+        }
+    }
+}
+
+/// The end of the episode whose last step is `last`.
+fn episode_end(last: &Transition, trial: bool) -> EpisodeEnd {
+    EpisodeEnd {
+        // Stamped when sent.
+        origin: Origin {
+            actor: 0,
+            incarnation: 0,
+            seq: 0,
+        },
+        episode: last.episode,
+        goal: last.goal,
+        grasped: last.grasped,
+        steps: last.step + 1,
+        trial,
     }
 }
 
@@ -129,7 +142,7 @@ impl<'a> Shipper<'a> {
 
     /// Completes a pending step with the next state's values and sends it (and the end of
     /// its episode) on `stream`. `next`: the next decision in the same scene, `None` if the
-    /// scene ended.
+    /// scene (or, the goal lost, the episode) ended.
     pub(super) fn ship(
         &mut self,
         stream: &mut Stream,
@@ -152,8 +165,7 @@ impl<'a> Shipper<'a> {
                     .as_ref()
                     .expect("pushes carry a change");
                 let before = pending.decision.goal_grasp_q;
-                // Not reached without a next decision (episodes end with a grasp); then only
-                // the change counts.
+                // Without a next decision (the push lost the goal) only the change counts.
                 let after = next.map_or(before, |d| d.goal_grasp_q);
                 t.reward = self.push_reward.reward(before, after, change);
                 let next_value = next.map(|d| d.state_value());
