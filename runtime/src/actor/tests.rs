@@ -1,0 +1,99 @@
+//! The actor's episode rules on a scene built by hand.
+
+use super::*;
+use policy::Reason;
+use sim::rapier3d::prelude::{Pose, Rotation, Vector};
+use sim::workspace::{CENTRE, X_MAX};
+use sim::{Action, ShapeKind};
+
+/// An environment whose episode's goal, a lone cube, lies 3 cm inside the workspace's +x
+/// edge.
+fn at_the_edge<'a>(config: &'a RunConfig, log: &'a RunLog) -> Environment<'a> {
+    let id = ActorId {
+        index: 0,
+        incarnation: 0,
+    };
+    let mut env = Environment::new(config, id, log).unwrap();
+    env.tabletop = Tabletop::new(&config.sim).unwrap();
+    let pose = Pose::from_parts(
+        Vector::new(X_MAX - 0.03, CENTRE[1], 0.025),
+        Rotation::IDENTITY,
+    );
+    env.tabletop
+        .add_object(1, ShapeKind::Cube, [200, 50, 50], pose)
+        .unwrap();
+    env.tabletop.settle();
+    let obs = env.camera.render(&env.tabletop);
+    env.episode = Some(Episode {
+        obs,
+        goal: 1,
+        step: 0,
+    });
+    env
+}
+
+/// Pushes along +x from 7 cm before the cube, towards the edge and beyond it.
+fn push_off(env: &mut Environment<'_>) -> Vec<Completed> {
+    let grid = env.tabletop.grid();
+    let (row, col) = grid.pixel_of(X_MAX - 0.10, CENTRE[1]).unwrap();
+    let side = grid.side();
+    let choice = Choice {
+        decision: Decision {
+            action: Action {
+                primitive: Primitive::Push,
+                rotation: 0,
+                row,
+                col,
+            },
+            predicted_q: 0.0,
+            goal_grasp_q: 0.5,
+            best_push_q: Some(0.0),
+            explored: false,
+            reason: Reason::BelowThreshold,
+            goal_visible: true,
+        },
+        grasp: QMaps::new(16, side, vec![0.0; 16 * side * side]).unwrap(),
+        push: None,
+    };
+    let completed = env.act(choice, 0).unwrap();
+    assert!(
+        env.tabletop.object(1).is_none(),
+        "the push left the goal on the table"
+    );
+    completed
+}
+
+#[test]
+fn a_push_that_takes_the_goal_off_the_table_ends_its_episode_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
+    let mut config = RunConfig::load(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/stage2.toml"
+    )))
+    .unwrap();
+    config.logging.image_every = 0;
+
+    config.goal_lost_ends_episode = true;
+    let mut env = at_the_edge(&config, &log);
+    let completed = push_off(&mut env);
+    let [(push, next)] = completed.as_slice() else {
+        panic!("{} steps completed, not the push alone", completed.len());
+    };
+    assert!(
+        next.is_none(),
+        "a push that lost the goal bootstraps on nothing"
+    );
+    let end = push.ends.as_ref().expect("the push ends its episode");
+    assert_eq!((end.grasped, end.steps, end.trial), (None, 1, false));
+    assert!(!push.push_changed.as_ref().unwrap().detected);
+    assert!(env.episode.is_none() && env.unlabelled.is_none());
+    assert_eq!(env.report.episodes, 1);
+
+    config.goal_lost_ends_episode = false;
+    let mut env = at_the_edge(&config, &log);
+    assert!(push_off(&mut env).is_empty());
+    assert_eq!(env.episode.as_ref().map(|e| (e.goal, e.step)), Some((1, 1)));
+    assert!(env.unlabelled.as_ref().is_some_and(|p| p.ends.is_none()));
+    assert_eq!(env.report.episodes, 0);
+}
