@@ -4,7 +4,7 @@
 use policy::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
 use qnet::{ActingNets, Device, Geometry, NetInput, QNetConfig, QNetError, QNets, RotatedQMaps};
 use rand_chacha::ChaCha8Rng;
-use sim::{Heightmaps, ObjectId, Primitive};
+use sim::{Heightmaps, ObjectId, Primitive, SimConfig};
 
 /// The nets acting through the policy.
 #[derive(Clone)]
@@ -17,6 +17,9 @@ pub struct Agent {
     /// evaluation); empty when an actor acts in training.
     ensemble: Vec<ActingNets>,
     pub geometry: Geometry,
+    /// How far the simulator's pushes move the tool (metres): the policy's goal guard
+    /// predicts with it.
+    pub push_length: f32,
     pub policy: PolicyConfig,
     pub mode: Mode,
 }
@@ -48,10 +51,10 @@ pub enum AgentError {
 }
 
 impl Agent {
-    /// Fresh nets of `net` for `side x side` heightmaps on `device`.
+    /// Fresh nets of `net` for the heightmaps of `sim` (validated) on `device`.
     pub fn new(
         net: &QNetConfig,
-        side: usize,
+        sim: &SimConfig,
         policy: PolicyConfig,
         mode: Mode,
         device: &Device,
@@ -61,7 +64,8 @@ impl Agent {
             acting: ActingNets::new(&nets).expect("fresh nets have an inference form"),
             nets,
             ensemble: Vec::new(),
-            geometry: Geometry::new(side, net),
+            geometry: Geometry::new(sim.grid().expect("a validated sim config").side(), net),
+            push_length: sim.push_length,
             policy,
             mode,
         }
@@ -141,6 +145,7 @@ impl Agent {
                     grasp: &grasp,
                     push: push.as_ref(),
                     pushes_so_far: s.pushes_so_far,
+                    push_length: self.push_length,
                 };
                 let decision =
                     policy::choose(&self.policy, self.mode, &policy_input, s.epsilon, s.rng)?;

@@ -7,7 +7,8 @@ use sim::{Camera, Primitive, SimConfig, Tabletop};
 
 #[test]
 fn an_ensemble_acts_on_the_mean_of_its_nets_q_maps() {
-    let tabletop = Tabletop::new(&SimConfig::with_pixel_size(0.004)).unwrap();
+    let sim = SimConfig::with_pixel_size(0.004);
+    let tabletop = Tabletop::new(&sim).unwrap();
     let obs = Camera::new(tabletop.grid()).render(&tabletop);
     let net = QNetConfig {
         trunk_widths: vec![4, 8],
@@ -17,7 +18,7 @@ fn an_ensemble_acts_on_the_mean_of_its_nets_q_maps() {
     let make = || {
         Agent::new(
             &net,
-            obs.side(),
+            &sim,
             PolicyConfig::default(),
             Mode::PushGrasp,
             &Device::flex(),

@@ -30,11 +30,11 @@ fn small_net() -> QNetConfig {
 
 /// Untrained nets on the same weights in every worker (the weights seeded once).
 fn same_agent() -> impl Fn() -> Agent + Sync {
-    let side = SimConfig::with_pixel_size(0.004).grid().unwrap().side();
+    let sim = SimConfig::with_pixel_size(0.004);
     let make = move || {
         Agent::new(
             &small_net(),
-            side,
+            &sim,
             PolicyConfig::default(),
             Mode::PushGrasp,
             &Device::flex(),

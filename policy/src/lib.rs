@@ -8,16 +8,18 @@
 //! the learner trains towards.
 
 pub mod error;
+pub mod goal_guard;
 pub mod label;
 pub mod policy;
 pub mod qmaps;
 pub mod reward;
 
 pub use error::PolicyError;
+pub use goal_guard::pushes_keeping_goal;
 pub use label::{grasp_label, push_label};
 pub use policy::{
     Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
-    grasp_region, trial_grasps, valid_push_starts,
+    grasp_region, push_region, trial_grasps, valid_push_starts,
 };
 pub use qmaps::QMaps;
 pub use reward::{GRASP_REWARD, PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

@@ -15,6 +15,7 @@ use sim::measure::occupancy_ratio;
 use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::error::PolicyError;
+use crate::goal_guard::pushes_keeping_goal;
 use crate::qmaps::QMaps;
 
 /// A push may only start where the surface is lower than this (metres): "pushes may not
@@ -48,6 +49,10 @@ pub struct PolicyConfig {
     /// Under [`Rule::ThresholdOrCrowded`]: push while more than this share of the ring
     /// around the goal is occupied ([`occupancy_ratio`]; the authors' test: 0.3).
     pub crowded_border: f32,
+    /// Pushes predicted to leave the goal's centre less than this far (metres) inside the
+    /// workspace are not chosen ([`pushes_keeping_goal`]): a goal out of the workspace is
+    /// lost, and its run with it. `None`: every push start is open, as in the paper.
+    pub goal_guard: Option<f32>,
 }
 
 /// How the policy chooses between pushing and grasping.
@@ -77,6 +82,7 @@ impl Default for PolicyConfig {
             epsilon_decay: 0.9998,
             rule: Rule::Threshold,
             crowded_border: 0.3,
+            goal_guard: None,
         }
     }
 }
@@ -87,6 +93,9 @@ impl PolicyConfig {
         ConfigError::check_range("q_star", self.q_star, ..)?;
         ConfigError::check_range("grasp_margin", self.grasp_margin, 0.0..)?;
         ConfigError::check_range("crowded_border", self.crowded_border, 0.0..=1.0)?;
+        if let Some(margin) = self.goal_guard {
+            ConfigError::check_range("goal_guard", margin, 0.0..)?;
+        }
         ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
         ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
         ConfigError::check_range(
@@ -153,6 +162,8 @@ pub struct PolicyInput<'a> {
     pub push: Option<&'a QMaps>,
     /// Pushes already made in this episode.
     pub pushes_so_far: usize,
+    /// How far a push moves the tool (metres; the simulator's `push_length`).
+    pub push_length: f32,
 }
 
 /// The policy's choice and what it was based on.
@@ -264,10 +275,36 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
     }
 }
 
+/// Where a push may go, laid out as [`QMaps::best_where`] reads it: the
+/// [`valid_push_starts`] for every rotation; under the config's `goal_guard`, per rotation,
+/// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]), unless none
+/// does.
+pub fn push_region(
+    obs: &Heightmaps,
+    goal: ObjectId,
+    config: &PolicyConfig,
+    push_length: f32,
+) -> Vec<bool> {
+    let starts = valid_push_starts(obs);
+    let Some(margin) = config.goal_guard else {
+        return starts;
+    };
+    let guarded: Vec<bool> = pushes_keeping_goal(obs, goal, push_length, margin)
+        .into_iter()
+        .zip(starts.iter().cycle())
+        .map(|(keeps, &start)| keeps && start)
+        .collect();
+    if guarded.contains(&true) {
+        guarded
+    } else {
+        starts
+    }
+}
+
 /// Picks the next action. Grasp when `mode` is grasp-only, the push budget is spent, or
 /// there are no push maps; otherwise the config's [`Rule`] decides (the paper's: grasp when
 /// the goal's grasp Q exceeds Q*, else push). The primitive goes to the argmax of its Q maps
-/// over its allowed pixels ([`grasp_region`], [`valid_push_starts`]) and all rotations, or,
+/// over its allowed pixels ([`grasp_region`], [`push_region`]) and all rotations, or,
 /// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set.
 /// Deterministic given `rng`.
 ///
@@ -297,7 +334,7 @@ pub fn choose(
     let goal_grasp_q = best_grasp.0;
     let best_push = match input.push {
         Some(push) => {
-            let starts = valid_push_starts(obs);
+            let starts = push_region(obs, input.goal, config, input.push_length);
             let best = push
                 .best_where(&starts)
                 .ok_or(PolicyError::NoQValue(Primitive::Push))?;
@@ -393,10 +430,16 @@ pub fn trial_grasps(
         .collect())
 }
 
-/// A pixel of `allowed` (row-major, `side * side`, not all false) and a rotation, uniformly.
+/// A rotation and pixel of `allowed` (not all false), uniformly: `allowed` is one
+/// `side * side` mask for every rotation, or one per rotation, as [`QMaps::best_where`]
+/// reads it.
 fn uniform_draw(allowed: &[bool], side: usize, rng: &mut impl Rng) -> (u8, usize, usize) {
     let pixels: Vec<usize> = (0..allowed.len()).filter(|&i| allowed[i]).collect();
     let pixel = pixels[rng.random_range(0..pixels.len())];
+    if allowed.len() > side * side {
+        let (rotation, pixel) = (pixel / (side * side), pixel % (side * side));
+        return (rotation as u8, pixel / side, pixel % side);
+    }
     let rotation = rng.random_range(0..ROTATIONS);
     (rotation, pixel / side, pixel % side)
 }

@@ -69,23 +69,35 @@ impl QMaps {
     }
 
     /// The highest Q value over all rotations at the pixels where `allowed[row * side + col]`
-    /// holds, as `(q, rotation, row, col)`. Ties go to the first in [rotation][row][col]
-    /// order, so the choice is deterministic; NaN never wins. `None` when no allowed pixel
-    /// has a value other than NaN.
+    /// holds (or, for a mask per rotation, `allowed[(rotation * side + row) * side + col]`),
+    /// as `(q, rotation, row, col)`. Ties go to the first in [rotation][row][col] order, so
+    /// the choice is deterministic; NaN never wins. `None` when no allowed pixel has a value
+    /// other than NaN.
     ///
-    /// Panics if `allowed` does not have `side * side` entries.
+    /// Panics if `allowed` has neither `side * side` nor `rotations * side * side` entries.
     pub fn best_where(&self, allowed: &[bool]) -> Option<(f32, u8, usize, usize)> {
         let pixels = self.side * self.side;
-        assert_eq!(allowed.len(), pixels, "mask size vs Q map size");
+        let per_rotation = allowed.len() == self.values.len() && allowed.len() != pixels;
+        assert!(
+            per_rotation || allowed.len() == pixels,
+            "mask size {} vs Q map size {pixels} (or {} for one mask per rotation)",
+            allowed.len(),
+            self.values.len()
+        );
         if pixels == 0 {
             // `chunks_exact` needs a non-zero size, and empty maps have nothing to pick.
             return None;
         }
         let mut best: Option<(f32, u8, usize, usize)> = None;
         for (rotation, map) in (0..self.rotations).zip(self.values.chunks_exact(pixels)) {
+            let at = if per_rotation {
+                rotation as usize * pixels
+            } else {
+                0
+            };
             for (i, (&q, _)) in map
                 .iter()
-                .zip(allowed)
+                .zip(&allowed[at..at + pixels])
                 .enumerate()
                 .filter(|(_, (_, a))| **a)
             {

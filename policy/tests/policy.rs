@@ -62,6 +62,7 @@ fn input<'a>(
         grasp,
         push,
         pushes_so_far,
+        push_length: 0.13,
     }
 }
 

@@ -106,3 +106,14 @@ fn ties_go_to_the_first_in_rotation_row_column_order() {
 fn a_mask_of_the_wrong_size_is_refused() {
     counting().best_where(&[true; 8]);
 }
+
+#[test]
+fn best_where_takes_a_mask_per_rotation() {
+    let maps = counting();
+    // Rotation 1 closed but for its first pixel; rotation 0 open everywhere.
+    let mut allowed = vec![true; 18];
+    allowed[10..].iter_mut().for_each(|a| *a = false);
+    assert_eq!(maps.best_where(&allowed), Some((9.0, 1, 0, 0)));
+    allowed[9] = false;
+    assert_eq!(maps.best_where(&allowed), Some((8.0, 0, 2, 2)));
+}

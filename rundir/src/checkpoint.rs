@@ -50,7 +50,7 @@ pub fn load_agent(
     }
     let mut agent = Agent::new(
         &config.net,
-        config.side(),
+        &config.sim,
         config.policy.clone(),
         mode,
         &open.device,

@@ -191,7 +191,7 @@ impl Policy {
         let device = open_device(config.backend.actors, "actors", log)?;
         let agent = Agent::new(
             &config.net,
-            config.side(),
+            &config.sim,
             config.policy.clone(),
             config.mode(),
             &device,

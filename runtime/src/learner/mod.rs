@@ -17,7 +17,7 @@ use experience::{BatchItem, Transition};
 use learner::checkpoint::config_hash;
 use learner::{Checkpoint, Manifest, NextState, Sample, SavedNets, Trainer};
 use mcaplog::{LogLevel, RunLog};
-use policy::{grasp_label, grasp_region, push_label, valid_push_starts};
+use policy::{grasp_label, grasp_region, push_label, push_region};
 use qnet::{Backend, NetInput, QNets};
 use sim::Primitive;
 use wire::{
@@ -377,7 +377,12 @@ impl<'a> LearnerRole<'a> {
                     Primitive::Grasp => {
                         grasp_region(&next.obs, t.goal, self.config.policy.grasp_margin)
                     }
-                    Primitive::Push => valid_push_starts(&next.obs),
+                    Primitive::Push => push_region(
+                        &next.obs,
+                        t.goal,
+                        &self.config.policy,
+                        self.config.sim.push_length,
+                    ),
                 };
                 let state = NextState {
                     input: NetInput::encode(&next.obs, t.goal),
