@@ -410,6 +410,38 @@ impl Gripper {
         (a - b) - 2.0 * stored_face
     }
 
+    /// Whether a part of the gripper bears on a body `is_object` names, from above or below:
+    /// an active contact whose normal is within 45 degrees of vertical (a finger brushing an
+    /// object's side does not count).
+    pub(crate) fn bears_on(
+        &self,
+        world: &PhysicsWorld,
+        is_object: impl Fn(RigidBodyHandle) -> bool,
+    ) -> bool {
+        let parts = self
+            .sides
+            .iter()
+            .flat_map(|s| [s.finger, s.links[0], s.links[1]])
+            .chain([self.palm]);
+        parts
+            .flat_map(|body| world.bodies[body].colliders().iter().copied())
+            .any(|collider| {
+                world.contact_pairs_with(collider).any(|pair| {
+                    let other = if pair.collider1 == collider {
+                        pair.collider2
+                    } else {
+                        pair.collider1
+                    };
+                    world.colliders[other].parent().is_some_and(&is_object)
+                        && pair.has_any_active_contact()
+                        && pair
+                            .manifolds()
+                            .iter()
+                            .any(|m| m.data.normal.z.abs() > std::f32::consts::FRAC_1_SQRT_2)
+                })
+            })
+    }
+
     /// The fastest finger speed relative to the palm (m/s), to tell when the jaws stopped.
     pub(crate) fn finger_speed(&self, world: &PhysicsWorld) -> f32 {
         let palm = world.bodies[self.palm].linvel();

@@ -155,12 +155,6 @@ impl Tabletop {
         let z = (surface + PUSH_TOOL_ABOVE_SURFACE).max(-pad_end_height(Jaws::Closed));
         let angle = action.angle();
         let length = self.config().push_length;
-        let start = Vector::new(x, y, z);
-        let end = Vector::new(
-            (x + length * angle.cos()).clamp(workspace::X_MIN, workspace::X_MAX),
-            (y + length * angle.sin()).clamp(workspace::Y_MIN, workspace::Y_MAX),
-            z,
-        );
         let rotation = Rotation::from_rotation_z(angle);
         let above = Vector::new(x, y, z + PUSH_APPROACH_HEIGHT);
         self.gripper.place(
@@ -168,7 +162,12 @@ impl Tabletop {
             Pose::from_parts(above, rotation),
             Jaws::Closed,
         );
-        self.move_tool(start, rotation, DESCEND_SPEED);
+        let start = self.lower_tool(Vector::new(x, y, z), rotation);
+        let end = Vector::new(
+            (x + length * angle.cos()).clamp(workspace::X_MIN, workspace::X_MAX),
+            (y + length * angle.sin()).clamp(workspace::Y_MIN, workspace::Y_MAX),
+            start.z,
+        );
         self.move_tool(end, rotation, PUSH_SPEED);
         self.move_tool(end + Vector::Z * PUSH_APPROACH_HEIGHT, rotation, LIFT_SPEED);
         let removed = self.remove_fallen();
@@ -247,6 +246,31 @@ impl Tabletop {
     /// Moves the tool in a straight line at a speed, position-controlled as the original's
     /// arm: what is in the way is pushed aside.
     fn move_tool(&mut self, target: Vector, rotation: Rotation, speed: f32) {
+        self.move_tool_until(target, rotation, speed, |_| false);
+    }
+
+    /// Lowers the tool to `target`, stopping where the gripper comes to bear on an object,
+    /// as an arm's guarded move stops on contact; returns where the tool stopped. The push
+    /// height is read from a window narrower than the gripper, so the tool can come down on
+    /// an object beside its start: driven on, the kinematic palm squeezes it into the table
+    /// until the solver flings it out at metres a second, off the table (results/learning.md,
+    /// "Objects flung by a push's descent").
+    fn lower_tool(&mut self, target: Vector, rotation: Rotation) -> Vector {
+        self.move_tool_until(target, rotation, DESCEND_SPEED, |tabletop| {
+            let is_object = |body| tabletop.is_object(body);
+            tabletop.gripper.bears_on(&tabletop.world, is_object)
+        })
+    }
+
+    /// Drives the tool in a straight line to `target` at `speed`, a physics step at a time,
+    /// until `stop` holds after a step; returns where the tool is then.
+    fn move_tool_until(
+        &mut self,
+        target: Vector,
+        rotation: Rotation,
+        speed: f32,
+        stop: impl Fn(&Self) -> bool,
+    ) -> Vector {
         let from = self.gripper.tool_pose(&self.world).translation;
         let distance = (target - from).length();
         let steps = ((distance / speed) * self.config().physics_hz)
@@ -257,7 +281,11 @@ impl Tabletop {
             self.gripper
                 .drive_to(&mut self.world, Pose::from_parts(at, rotation));
             self.step();
+            if stop(self) {
+                return self.gripper.tool_pose(&self.world).translation;
+            }
         }
+        target
     }
 
     fn seconds_to_steps(&self, seconds: f32) -> u32 {

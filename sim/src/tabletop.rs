@@ -267,6 +267,11 @@ impl Tabletop {
         fallen
     }
 
+    /// Whether `body` is one of the objects on the table.
+    pub(crate) fn is_object(&self, body: RigidBodyHandle) -> bool {
+        self.objects.iter().any(|o| o.body == body)
+    }
+
     /// Takes an object out of the world (after a grasp, or when it fell off).
     pub fn remove_object(&mut self, id: ObjectId) -> bool {
         let Some(index) = self.objects.iter().position(|o| o.id == id) else {

@@ -150,6 +150,39 @@ fn a_push_moves_a_cube_along_the_push_direction() {
 }
 
 #[test]
+fn a_push_coming_down_on_an_object_stops_there_and_does_not_fling_it() {
+    // A tall block lying along y; the push starts beyond its end, towards it, so the closed
+    // jaws (41 mm along the push) come down on its end. Driven on down, they squeezed it
+    // into the table until it flew off at 1-2 m/s.
+    for offset in [0.06, 0.065, 0.07] {
+        let mut tabletop = Tabletop::new(&SimConfig::default()).unwrap();
+        let lying = Pose::from_parts(
+            Vector::new(CENTRE[0], CENTRE[1], 0.025),
+            Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
+        );
+        tabletop
+            .add_object(1, ShapeKind::TallBlock, [200, 50, 50], lying)
+            .unwrap();
+        tabletop.settle();
+        let before = tabletop.object(1).unwrap().pose.translation;
+        let maps = observe(&tabletop);
+        // Rotation 12 pushes towards -y.
+        let action = action_at(&tabletop, Primitive::Push, 12, before.x, before.y + offset);
+        let outcome = tabletop.act(&action, &maps).unwrap();
+        let after = tabletop
+            .object(1)
+            .unwrap_or_else(|| panic!("offset {offset}: the block left the table: {outcome:?}"))
+            .pose
+            .translation;
+        let moved = after - before;
+        assert!(
+            moved.truncate().length() < 0.15,
+            "offset {offset}: moved {moved:?}, more than the push's 13 cm"
+        );
+    }
+}
+
+#[test]
 fn a_push_that_misses_moves_nothing() {
     let mut tabletop = lone(ShapeKind::Cube, 0.0);
     let before = tabletop.object(1).unwrap().pose.translation;
