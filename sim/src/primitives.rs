@@ -249,16 +249,16 @@ impl Tabletop {
         self.move_tool_until(target, rotation, speed, |_| false);
     }
 
-    /// Lowers the tool to `target`, stopping where the gripper comes to bear on an object,
-    /// as an arm's guarded move stops on contact; returns where the tool stopped. The push
-    /// height is read from a window narrower than the gripper, so the tool can come down on
-    /// an object beside its start: driven on, the kinematic palm squeezes it into the table
-    /// until the solver flings it out at metres a second, off the table (results/learning.md,
-    /// "Objects flung by a push's descent").
+    /// Lowers the tool to `target`; under `guarded_push_descent`, stops where the gripper
+    /// comes to bear on an object, as an arm's guarded move stops on contact. Returns where
+    /// the tool stopped. The push height is read from a window narrower than the gripper, so
+    /// the tool can come down on an object beside its start: driven on, the kinematic palm
+    /// squeezes it into the table until the solver flings it out at metres a second.
     fn lower_tool(&mut self, target: Vector, rotation: Rotation) -> Vector {
+        let guarded = self.config().guarded_push_descent;
         self.move_tool_until(target, rotation, DESCEND_SPEED, |tabletop| {
             let is_object = |body| tabletop.is_object(body);
-            tabletop.gripper.bears_on(&tabletop.world, is_object)
+            guarded && tabletop.gripper.bears_on(&tabletop.world, is_object)
         })
     }
 

@@ -152,10 +152,14 @@ fn a_push_moves_a_cube_along_the_push_direction() {
 #[test]
 fn a_push_coming_down_on_an_object_stops_there_and_does_not_fling_it() {
     // A tall block lying along y; the push starts beyond its end, towards it, so the closed
-    // jaws (41 mm along the push) come down on its end. Driven on down, they squeezed it
-    // into the table until it flew off at 1-2 m/s.
+    // jaws (41 mm along the push) come down on its end. Driven on down (the key off), they
+    // squeeze it into the table until it flies off at 1-2 m/s.
+    let config = SimConfig {
+        guarded_push_descent: true,
+        ..SimConfig::default()
+    };
     for offset in [0.06, 0.065, 0.07] {
-        let mut tabletop = Tabletop::new(&SimConfig::default()).unwrap();
+        let mut tabletop = Tabletop::new(&config).unwrap();
         let lying = Pose::from_parts(
             Vector::new(CENTRE[0], CENTRE[1], 0.025),
             Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
