@@ -132,14 +132,20 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "policy.grasp_margin=0.02",
             "--set",
             "policy.q_star=1000",
+            "--set",
+            "policy.goal_guard=0.02",
+            "--set",
+            "sim.guarded_push_descent=true",
         ],
     );
     assert_eq!(
         (
             margined["grasp_margin"].as_f64().unwrap(),
-            margined["q_star"].as_f64().unwrap()
+            margined["q_star"].as_f64().unwrap(),
+            margined["goal_guard"].as_f64(),
+            margined["guarded_push_descent"].as_bool()
         ),
-        (0.02, 1000.0)
+        (0.02, 1000.0, Some(0.02), Some(true))
     );
 
     // The authors' protocol: their rule and Q*, random scenes by the Q* alone, and learning

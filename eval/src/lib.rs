@@ -170,6 +170,8 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         rule: agent.policy.rule,
         q_star: agent.policy.q_star,
         grasp_margin: agent.policy.grasp_margin,
+        goal_guard: agent.policy.goal_guard,
+        guarded_push_descent: config.sim.guarded_push_descent,
         goal_agnostic: args.goal_agnostic,
         learning: eval.learning,
         random_scene_rule: eval.random_scene_rule,

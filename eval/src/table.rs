@@ -31,6 +31,10 @@ pub(crate) struct EvalReport {
     pub(crate) q_star: f32,
     /// `[policy] grasp_margin`, metres.
     pub(crate) grasp_margin: f32,
+    /// `[policy] goal_guard`, metres, where pushes were guarded.
+    pub(crate) goal_guard: Option<f32>,
+    /// `[sim] guarded_push_descent`.
+    pub(crate) guarded_push_descent: bool,
     pub(crate) goal_agnostic: bool,
     /// Whether the nets learned during the test (`--learn`), and from what.
     pub(crate) learning: Option<TestLearning>,
@@ -46,7 +50,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -63,6 +67,15 @@ pub(crate) fn print_table(report: &EvalReport) {
             format!(", grasp margin {} mm", 1000.0 * report.grasp_margin)
         } else {
             String::new()
+        },
+        report
+            .goal_guard
+            .map(|margin| format!(", goal guard {} mm", 1000.0 * margin))
+            .unwrap_or_default(),
+        if report.guarded_push_descent {
+            ", guarded push descent"
+        } else {
+            ""
         },
         if report.goal_agnostic {
             ", goal-agnostic (clear the table)"
