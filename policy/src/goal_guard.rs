@@ -29,7 +29,7 @@ pub fn pushes_keeping_goal(
     // and the workspace spans [0, side] on both axes.
     let goal_pixels: Vec<[f32; 2]> = (0..side * side)
         .filter(|&i| obs.ids[i] == goal)
-        .map(|i| [(i % side) as f32 + 0.5, (i / side) as f32 + 0.5])
+        .map(|i| pixel_centre(i, side))
         .collect();
     if goal_pixels.is_empty() {
         return keeps;
@@ -53,7 +53,7 @@ pub fn pushes_keeping_goal(
         let across = [-angle.sin(), angle.cos()];
         let goal = Profile::new(&goal_pixels, along, across);
         for (i, keep) in keeps.iter_mut().enumerate() {
-            let start = [(i % side) as f32 + 0.5, (i / side) as f32 + 0.5];
+            let start = pixel_centre(i, side);
             let end = [0, 1].map(|a| (start[a] + reach * along[a]).clamp(0.0, bound));
             let Some(met) = goal.met(dot(start, along), dot(end, along), dot(start, across), half)
             else {
@@ -64,6 +64,11 @@ pub fn pushes_keeping_goal(
         }
     }
     keeps
+}
+
+/// Pixel `i` (row-major) as (x, y) in pixel units: its column and row, plus half a pixel.
+fn pixel_centre(i: usize, side: usize) -> [f32; 2] {
+    [(i % side) as f32 + 0.5, (i / side) as f32 + 0.5]
 }
 
 fn dot(a: [f32; 2], b: [f32; 2]) -> f32 {

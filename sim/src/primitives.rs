@@ -249,11 +249,9 @@ impl Tabletop {
         self.move_tool_until(target, rotation, speed, |_| false);
     }
 
-    /// Lowers the tool to `target`; under `guarded_push_descent`, stops where the gripper
-    /// comes to bear on an object, as an arm's guarded move stops on contact. Returns where
-    /// the tool stopped. The push height is read from a window narrower than the gripper, so
-    /// the tool can come down on an object beside its start: driven on, the kinematic palm
-    /// squeezes it into the table until the solver flings it out at metres a second.
+    /// Lowers the tool to `target`; under `guarded_push_descent` (why: its doc), stops where
+    /// the gripper comes to bear on an object, as an arm's guarded move stops on contact.
+    /// Returns where the tool stopped.
     fn lower_tool(&mut self, target: Vector, rotation: Rotation) -> Vector {
         let guarded = self.config().guarded_push_descent;
         self.move_tool_until(target, rotation, DESCEND_SPEED, |tabletop| {
