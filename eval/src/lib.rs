@@ -171,6 +171,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         q_star: agent.policy.q_star,
         grasp_margin: agent.policy.grasp_margin,
         goal_guard: agent.policy.goal_guard,
+        push_reach: agent.policy.push_reach,
         guarded_push_descent: config.sim.guarded_push_descent,
         goal_agnostic: args.goal_agnostic,
         learning: eval.learning,

@@ -33,6 +33,8 @@ pub(crate) struct EvalReport {
     pub(crate) grasp_margin: f32,
     /// `[policy] goal_guard`, metres, where pushes were guarded.
     pub(crate) goal_guard: Option<f32>,
+    /// `[policy] push_reach`, metres, where pushes were kept near the goal.
+    pub(crate) push_reach: Option<f32>,
     /// `[sim] guarded_push_descent`.
     pub(crate) guarded_push_descent: bool,
     pub(crate) goal_agnostic: bool,
@@ -50,7 +52,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -71,6 +73,10 @@ pub(crate) fn print_table(report: &EvalReport) {
         report
             .goal_guard
             .map(|margin| format!(", goal guard {} mm", 1000.0 * margin))
+            .unwrap_or_default(),
+        report
+            .push_reach
+            .map(|reach| format!(", pushes within {} mm of the goal", 1000.0 * reach))
             .unwrap_or_default(),
         if report.guarded_push_descent {
             ", guarded push descent"

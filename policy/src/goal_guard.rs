@@ -27,10 +27,7 @@ pub fn pushes_keeping_goal(
     let mut keeps = vec![true; ROTATIONS as usize * side * side];
     // Continuous pixel units: pixel (row, col) is centred at x = col + 0.5, y = row + 0.5,
     // and the workspace spans [0, side] on both axes.
-    let goal_pixels: Vec<[f32; 2]> = (0..side * side)
-        .filter(|&i| obs.ids[i] == goal)
-        .map(|i| pixel_centre(i, side))
-        .collect();
+    let goal_pixels = goal_pixels(obs, goal);
     if goal_pixels.is_empty() {
         return keeps;
     }
@@ -66,18 +63,27 @@ pub fn pushes_keeping_goal(
     keeps
 }
 
+/// The goal's visible pixels' centres, in pixel units.
+pub(crate) fn goal_pixels(obs: &Heightmaps, goal: ObjectId) -> Vec<[f32; 2]> {
+    let side = obs.side();
+    (0..side * side)
+        .filter(|&i| obs.ids[i] == goal)
+        .map(|i| pixel_centre(i, side))
+        .collect()
+}
+
 /// Pixel `i` (row-major) as (x, y) in pixel units: its column and row, plus half a pixel.
-fn pixel_centre(i: usize, side: usize) -> [f32; 2] {
+pub(crate) fn pixel_centre(i: usize, side: usize) -> [f32; 2] {
     [(i % side) as f32 + 0.5, (i / side) as f32 + 0.5]
 }
 
-fn dot(a: [f32; 2], b: [f32; 2]) -> f32 {
+pub(crate) fn dot(a: [f32; 2], b: [f32; 2]) -> f32 {
     a[0] * b[0] + a[1] * b[1]
 }
 
 /// The goal seen along a push direction: for each one-pixel strip across it, the nearest and
 /// farthest of its pixels along the push.
-struct Profile {
+pub(crate) struct Profile {
     /// The first strip's position across the push.
     first: f32,
     /// (nearest, farthest) along the push per strip; `None` where no goal pixel falls.
@@ -85,7 +91,7 @@ struct Profile {
 }
 
 impl Profile {
-    fn new(pixels: &[[f32; 2]], along: [f32; 2], across: [f32; 2]) -> Self {
+    pub(crate) fn new(pixels: &[[f32; 2]], along: [f32; 2], across: [f32; 2]) -> Self {
         let first = pixels
             .iter()
             .map(|&p| dot(p, across))
@@ -107,7 +113,7 @@ impl Profile {
 
     /// Where along the push a tool from `start` to `end` (positions along it), `across` the
     /// push with half-width `half`, first meets the goal; `None` if it does not.
-    fn met(&self, start: f32, end: f32, across: f32, half: f32) -> Option<f32> {
+    pub(crate) fn met(&self, start: f32, end: f32, across: f32, half: f32) -> Option<f32> {
         let from = (across - half - self.first).floor().max(0.0) as usize;
         let to = (across + half - self.first).floor();
         if to < 0.0 {

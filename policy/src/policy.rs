@@ -16,6 +16,7 @@ use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::error::PolicyError;
 use crate::goal_guard::pushes_keeping_goal;
+use crate::push_reach::pushes_near_goal;
 use crate::qmaps::QMaps;
 
 /// A push may only start where the surface is lower than this (metres): "pushes may not
@@ -53,6 +54,10 @@ pub struct PolicyConfig {
     /// workspace are not chosen ([`pushes_keeping_goal`]): a goal out of the workspace is
     /// lost, and its run with it. `None`: every push start is open, as in the paper.
     pub goal_guard: Option<f32>,
+    /// Pushes whose swept band passes farther than this (metres) from the goal are neither
+    /// chosen nor drawn when exploring ([`pushes_near_goal`]): they cannot change the goal's
+    /// surroundings. `None`: every push start is open, as in the paper.
+    pub push_reach: Option<f32>,
 }
 
 /// How the policy chooses between pushing and grasping.
@@ -83,6 +88,7 @@ impl Default for PolicyConfig {
             rule: Rule::Threshold,
             crowded_border: 0.3,
             goal_guard: None,
+            push_reach: None,
         }
     }
 }
@@ -95,6 +101,9 @@ impl PolicyConfig {
         ConfigError::check_range("crowded_border", self.crowded_border, 0.0..=1.0)?;
         if let Some(margin) = self.goal_guard {
             ConfigError::check_range("goal_guard", margin, 0.0..)?;
+        }
+        if let Some(reach) = self.push_reach {
+            ConfigError::check_range("push_reach", reach, 0.0..)?;
         }
         ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
         ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
@@ -177,8 +186,8 @@ pub struct Decision {
     /// The highest grasp Q over all rotations inside the grasp region (the goal mask when
     /// the goal is visible): the discriminator's score, and the "before" of a push reward.
     pub goal_grasp_q: f32,
-    /// The highest push Q over the valid push starts and all rotations, when push maps were
-    /// given.
+    /// The highest push Q over the pushes the policy may choose ([`push_region`]), when push
+    /// maps were given.
     pub best_push_q: Option<f32>,
     /// Whether the pixel and rotation were drawn at random rather than the argmax.
     pub explored: bool,
@@ -277,8 +286,9 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
 
 /// Where a push may go, laid out as [`QMaps::best_where`] reads it: the
 /// [`valid_push_starts`] for every rotation; under the config's `goal_guard`, per rotation,
-/// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]), unless none
-/// does.
+/// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]); under its
+/// `push_reach`, of those, the ones that pass near the goal ([`pushes_near_goal`]). A mask
+/// that would leave no push is not applied, nor any after it.
 pub fn push_region(
     obs: &Heightmaps,
     goal: ObjectId,
@@ -286,19 +296,29 @@ pub fn push_region(
     push_length: f32,
 ) -> Vec<bool> {
     let starts = valid_push_starts(obs);
-    let Some(margin) = config.goal_guard else {
+    let masks: Vec<Vec<bool>> = [
+        config
+            .goal_guard
+            .map(|margin| pushes_keeping_goal(obs, goal, push_length, margin)),
+        config
+            .push_reach
+            .map(|reach| pushes_near_goal(obs, goal, push_length, reach)),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    if masks.is_empty() {
         return starts;
-    };
-    let guarded: Vec<bool> = pushes_keeping_goal(obs, goal, push_length, margin)
-        .into_iter()
-        .zip(starts.iter().cycle())
-        .map(|(keeps, &start)| keeps && start)
-        .collect();
-    if guarded.contains(&true) {
-        guarded
-    } else {
-        starts
     }
+    let mut region = starts.repeat(ROTATIONS as usize);
+    for mask in masks {
+        let narrowed: Vec<bool> = region.iter().zip(&mask).map(|(&r, &m)| r && m).collect();
+        if !narrowed.contains(&true) {
+            break;
+        }
+        region = narrowed;
+    }
+    region
 }
 
 /// Picks the next action. Grasp when `mode` is grasp-only, the push budget is spent, or
