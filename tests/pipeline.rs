@@ -40,12 +40,13 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
     let work = tempfile::tempdir().unwrap();
     let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
     let file = work.path().join("pipeline.toml");
-    // The last stage trains two nets, an ensemble's members.
-    let stages: String = [(1, 10, 1), (2, 4, 1), (3, 4, 2)]
+    // The second stage ends on a learner-update budget alone (no episode budget); the last
+    // trains two nets, an ensemble's members.
+    let stages: String = [(1, 10, "", 1), (2, 0, "updates = 2\n", 1), (3, 4, "", 2)]
         .iter()
-        .map(|(n, episodes, members)| {
+        .map(|(n, episodes, updates, members)| {
             format!(
-                "[[stages]]\nconfig = {:?}\nepisodes = {episodes}\nmembers = {members}\n",
+                "[[stages]]\nconfig = {:?}\nepisodes = {episodes}\n{updates}members = {members}\n",
                 configs.join(format!("stage{n}.toml"))
             )
         })
@@ -72,7 +73,7 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
     assert!(said.contains("pipeline smoke done"), "{said}");
 
     let dir = logs.join("smoke");
-    for (stage, episodes) in [(1, 10), (2, 4), (3, 4)] {
+    for (stage, episodes) in [(1, 10), (2, 0), (3, 4)] {
         let run = dir.join(format!("stage{stage}"));
         let summary: Value =
             serde_json::from_slice(&std::fs::read(run.join("summary.json")).unwrap()).unwrap();
@@ -80,6 +81,11 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
         assert_eq!(summary["interrupted"], false);
         let config: toml::Table =
             toml::from_str(&std::fs::read_to_string(run.join("config.toml")).unwrap()).unwrap();
+        if stage == 2 {
+            assert_eq!(config["episodes"].as_integer(), Some(0));
+            assert_eq!(config["updates"].as_integer(), Some(2));
+            assert!(summary["learner"]["updates"].as_u64().unwrap() >= 2);
+        }
         assert_eq!(config["stage"].as_integer(), Some(stage));
         assert_eq!(config["push_reward"].as_str(), Some("none"));
         assert_eq!(config["buffer"]["relabel"].as_bool(), Some(false));

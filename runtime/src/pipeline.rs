@@ -61,6 +61,9 @@ struct StageEntry {
     config: PathBuf,
     /// Overrides the config's episode budget.
     episodes: Option<u64>,
+    /// Overrides the config's learner-update budget (the run ends at whichever budget comes
+    /// first; an episode budget of 0 leaves updates alone to end it).
+    updates: Option<u64>,
     /// Settings for this stage alone, under the file's `[set]` and `--set`.
     #[serde(default)]
     set: toml::Table,
@@ -185,6 +188,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
                 seed: (member > 1).then(|| member_seed(stage.config.seed, member)),
                 config: &path,
                 episodes: stage.entry.episodes,
+                updates: stage.entry.updates,
                 init_from: previous.as_deref(),
             };
             let (checkpoint, line) = run.run(&dir, &id, args.threads)?;
@@ -221,6 +225,7 @@ struct StageRun<'a> {
     seed: Option<u64>,
     config: &'a Path,
     episodes: Option<u64>,
+    updates: Option<u64>,
     /// The previous stage's checkpoint.
     init_from: Option<&'a Path>,
 }
@@ -254,6 +259,9 @@ impl StageRun<'_> {
             if let Some(episodes) = self.episodes {
                 command.args(["--episodes", &episodes.to_string()]);
             }
+            if let Some(updates) = self.updates {
+                command.args(["--updates", &updates.to_string()]);
+            }
             if threads {
                 command.arg("--threads");
             }
@@ -272,8 +280,9 @@ impl StageRun<'_> {
         let summary = Summary::read(&run_dir)?
             .with_context(|| format!("{}: no summary", run_dir.path().display()))?;
         let line = format!(
-            "{run_id}: {} episodes, goal grasp success last 30 {}, {:.0} s",
+            "{run_id}: {} episodes, {} updates, goal grasp success last 30 {}, {:.0} s",
             summary.buffer.episodes,
+            summary.learner.updates,
             percent(summary.buffer.success_last30),
             summary.wall_s
         );
