@@ -139,6 +139,8 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("policy.q_star", "nan"),
         ("policy.grasp_margin", "-0.004"),
         ("policy.crowded_border", "1.2"),
+        ("policy.goal_guard", "-0.02"),
+        ("policy.push_reach", "-0.04"),
         ("policy.epsilon_start", "3.0"),
         ("policy.epsilon_decay", "1.5"),
         ("net.trunk_widths", "[]"),
