@@ -12,6 +12,7 @@ pub mod goal_guard;
 pub mod label;
 pub mod policy;
 pub mod push_reach;
+pub mod push_sweep;
 pub mod qmaps;
 pub mod reward;
 

@@ -3,14 +3,13 @@
 //! guard passes over a closed push however high its Q.
 
 mod common;
+mod masks;
 
-use common::cube;
+use masks::{chosen, cubes, index, push};
 use sim::workspace::{CENTRE, SIDE};
-use sim::{Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop};
+use sim::{Action, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop};
 
-use policy::{Mode, PolicyConfig, PolicyInput, QMaps, choose, push_region, pushes_keeping_goal};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
+use policy::{PolicyConfig, push_region, pushes_keeping_goal};
 
 const GOAL: ObjectId = 1;
 /// Rotation 0 pushes towards +x, rotation 8 towards -x.
@@ -20,28 +19,11 @@ const MARGIN: f32 = 0.02;
 
 /// A 5 cm goal cube whose centre is `from_edge` metres from the workspace's +x edge.
 fn goal_near_edge(from_edge: f32) -> (Tabletop, Heightmaps, SimConfig) {
-    let config = SimConfig::with_pixel_size(0.004);
-    let mut tabletop = Tabletop::new(&config).unwrap();
-    cube(&mut tabletop, GOAL, SIDE / 2.0 - from_edge, 0.0, 0.025);
-    let obs = Camera::new(tabletop.grid()).render(&tabletop);
-    (tabletop, obs, config)
-}
-
-/// A push at `rotation` from the point offset (dx, dy) from the workspace centre.
-fn push(obs: &Heightmaps, rotation: u8, dx: f32, dy: f32) -> Action {
-    let (row, col) = obs.grid.pixel_of(CENTRE[0] + dx, CENTRE[1] + dy).unwrap();
-    Action {
-        primitive: Primitive::Push,
-        rotation,
-        row,
-        col,
-    }
+    cubes(&[(GOAL, SIDE / 2.0 - from_edge, 0.0)])
 }
 
 fn keeps(obs: &Heightmaps, config: &SimConfig, action: &Action) -> bool {
-    let side = obs.side();
-    let guard = pushes_keeping_goal(obs, GOAL, config.push_length, MARGIN);
-    guard[(action.rotation as usize * side + action.row) * side + action.col]
+    pushes_keeping_goal(obs, GOAL, config.push_length, MARGIN)[index(obs, action)]
 }
 
 /// Executes `action` and says whether the goal is still on the table.
@@ -100,25 +82,8 @@ fn an_unseen_goal_closes_nothing() {
 fn under_the_guard_the_policy_passes_over_a_closed_push() {
     let (_, obs, config) = goal_near_edge(0.07);
     let closed = push(&obs, TOWARDS_EDGE, SIDE / 2.0 - 0.07 - 0.055, 0.0);
-    let side = obs.side();
-    let mut push_q = vec![0.0; ROTATIONS as usize * side * side];
-    push_q[(closed.rotation as usize * side + closed.row) * side + closed.col] = 5.0;
-    let push_maps = QMaps::new(ROTATIONS, side, push_q).unwrap();
-    let grasp_maps = QMaps::new(ROTATIONS, side, vec![0.0; push_maps.values().len()]).unwrap();
-    let input = PolicyInput {
-        obs: &obs,
-        goal: GOAL,
-        grasp: &grasp_maps,
-        push: Some(&push_maps),
-        pushes_so_far: 0,
-        push_length: config.push_length,
-    };
-    let chosen = |policy: &PolicyConfig| {
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        choose(policy, Mode::PushGrasp, &input, 0.0, &mut rng)
-            .unwrap()
-            .action
-    };
+    let chosen =
+        |policy: &PolicyConfig| chosen(&obs, GOAL, config.push_length, &closed, policy, 0.0, 0);
     let paper = PolicyConfig::default();
     assert_eq!(chosen(&paper), closed);
     let guarded = PolicyConfig {
@@ -129,6 +94,6 @@ fn under_the_guard_the_policy_passes_over_a_closed_push() {
     assert_eq!(action.primitive, Primitive::Push);
     assert_ne!(action, closed);
     let region = push_region(&obs, GOAL, &guarded, config.push_length);
-    assert!(region[(action.rotation as usize * side + action.row) * side + action.col]);
-    assert!(!region[(closed.rotation as usize * side + closed.row) * side + closed.col]);
+    assert!(region[index(&obs, &action)]);
+    assert!(!region[index(&obs, &closed)]);
 }

@@ -3,15 +3,13 @@
 //! them, and the policy under the mask neither chooses nor explores a closed push.
 
 mod common;
+mod masks;
 
-use common::cube;
+use masks::{chosen, cubes, index, push};
 use sim::measure::detect_change;
-use sim::workspace::CENTRE;
 use sim::{Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, SimConfig, Tabletop};
 
-use policy::{Mode, PolicyConfig, PolicyInput, QMaps, choose, push_region, pushes_near_goal};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
+use policy::{PolicyConfig, push_region, pushes_near_goal};
 
 const GOAL: ObjectId = 1;
 const NEIGHBOUR: ObjectId = 2;
@@ -21,28 +19,7 @@ const REACH: f32 = 0.04;
 
 /// A 5 cm goal cube at the workspace centre and a 5 cm neighbour `dy` metres beside it.
 fn goal_and_neighbour(dy: f32) -> (Tabletop, Heightmaps, SimConfig) {
-    let config = SimConfig::with_pixel_size(0.004);
-    let mut tabletop = Tabletop::new(&config).unwrap();
-    cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
-    cube(&mut tabletop, NEIGHBOUR, 0.0, dy, 0.025);
-    let obs = Camera::new(tabletop.grid()).render(&tabletop);
-    (tabletop, obs, config)
-}
-
-/// A push at `rotation` from the point offset (dx, dy) from the workspace centre.
-fn push(obs: &Heightmaps, rotation: u8, dx: f32, dy: f32) -> Action {
-    let (row, col) = obs.grid.pixel_of(CENTRE[0] + dx, CENTRE[1] + dy).unwrap();
-    Action {
-        primitive: Primitive::Push,
-        rotation,
-        row,
-        col,
-    }
-}
-
-fn index(obs: &Heightmaps, action: &Action) -> usize {
-    let side = obs.side();
-    (action.rotation as usize * side + action.row) * side + action.col
+    cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, 0.0, dy)])
 }
 
 fn near(obs: &Heightmaps, config: &SimConfig, action: &Action) -> bool {
@@ -105,24 +82,8 @@ fn an_unseen_goal_closes_nothing() {
 fn under_the_reach_the_policy_neither_chooses_nor_explores_a_closed_push() {
     let (_, obs, config) = goal_and_neighbour(0.13);
     let far = push(&obs, TOWARDS_X, -0.07, 0.13);
-    let side = obs.side();
-    let mut push_q = vec![0.0; ROTATIONS as usize * side * side];
-    push_q[index(&obs, &far)] = 5.0;
-    let push_maps = QMaps::new(ROTATIONS, side, push_q).unwrap();
-    let grasp_maps = QMaps::new(ROTATIONS, side, vec![0.0; push_maps.values().len()]).unwrap();
-    let input = PolicyInput {
-        obs: &obs,
-        goal: GOAL,
-        grasp: &grasp_maps,
-        push: Some(&push_maps),
-        pushes_so_far: 0,
-        push_length: config.push_length,
-    };
     let chosen = |policy: &PolicyConfig, epsilon: f32, seed: u64| {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        choose(policy, Mode::PushGrasp, &input, epsilon, &mut rng)
-            .unwrap()
-            .action
+        chosen(&obs, GOAL, config.push_length, &far, policy, epsilon, seed)
     };
     assert_eq!(chosen(&PolicyConfig::default(), 0.0, 0), far);
     let reaching = PolicyConfig {
