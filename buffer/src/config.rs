@@ -113,6 +113,13 @@ pub struct BufferConfig {
     /// Seconds between the snapshots the buffer role writes in the background while it
     /// serves (besides those on request and at the end); 0 for none.
     pub snapshot_every_s: f64,
+    /// The share of each batch drawn from transitions with a positive reward (a grasp that
+    /// took its goal, a rewarded push), the rest from the others, each part by priority
+    /// within its kind; all from one kind while the other has none. The authors' code
+    /// replays, after each update, a transition whose reward was the opposite of the
+    /// newest one's: 0.5 is that balance. Unset (the paper, Ape-X): one draw by priority
+    /// over all.
+    pub positive_share: Option<f64>,
 }
 
 impl Default for BufferConfig {
@@ -128,6 +135,7 @@ impl Default for BufferConfig {
             error_buffer: 256.0,
             relabel: true,
             snapshot_every_s: 60.0,
+            positive_share: None,
         }
     }
 }
@@ -147,6 +155,9 @@ impl BufferConfig {
         ConfigError::check_range("beta_start", self.beta_start, 0.0..=1.0)?;
         ConfigError::check_range("priority_epsilon", self.priority_epsilon, above(0.0))?;
         ConfigError::check_range("snapshot_every_s", self.snapshot_every_s, 0.0..)?;
+        if let Some(share) = self.positive_share {
+            ConfigError::check_range("positive_share", share, 0.0..=1.0)?;
+        }
         self.rate_limiter().map(drop)
     }
 

@@ -1,6 +1,7 @@
 //! Proportional prioritised replay (Schaul et al.; Ape-X's initial priorities): one ring and
 //! one sum tree per primitive, so push and grasp batches are drawn from their own experience
-//! at their own priorities.
+//! at their own priorities. With a positive share (`[buffer] positive_share`), each ring has
+//! two trees, one per kind of reward, and a batch draws that share from the positive one.
 //!
 //! The rings and the prioritised replay over them are one structure: every method keeps the rings,
 //! the sum trees and the counts in step, so they stay in one file.
@@ -176,19 +177,46 @@ impl Ring {
         Ok(())
     }
 
-    /// The sum tree of the ring's priorities raised to `alpha`.
-    fn tree(&self, alpha: f64) -> SumTree {
-        let mut tree = SumTree::new(self.capacity);
-        let weights: Vec<f64> = self.priorities.iter().map(|p| p.powf(alpha)).collect();
-        tree.set_many(0, &weights);
-        tree
+    /// The sum trees of the ring's priorities raised to `alpha`, one per kind of reward
+    /// (`kinds` of them; `kind` says an item's): an item weighs in its kind's tree only.
+    fn trees(
+        &self,
+        alpha: f64,
+        kinds: usize,
+        kind: impl Fn(&StoredTransition) -> usize,
+    ) -> Vec<SumTree> {
+        let mut weights = vec![vec![0.0; self.items.len()]; kinds];
+        for (slot, (item, p)) in self.items.iter().zip(self.priorities.iter()).enumerate() {
+            weights[kind(item)][slot] = p.powf(alpha);
+        }
+        weights
+            .iter()
+            .map(|weights| {
+                let mut tree = SumTree::new(self.capacity);
+                tree.set_many(0, weights);
+                tree
+            })
+            .collect()
     }
 }
 
-/// The sum trees of the two rings (push, grasp): their priorities raised to alpha, a
-/// function of the rings. Left out of a snapshot's copy and file, rebuilt when it is read.
+/// The sum trees of the two rings (push, grasp), each ring's one per kind of reward: their
+/// priorities raised to alpha, a function of the rings. Left out of a snapshot's copy and
+/// file, rebuilt when it is read.
 #[derive(Debug, Default, PartialEq)]
-struct Trees(Vec<SumTree>);
+struct Trees(Vec<Vec<SumTree>>);
+
+/// Writes a run of consecutive slots from `start` into a ring's trees: each slot's weight
+/// into its kind's tree, 0 into the others'.
+fn set_run(trees: &mut [SumTree], start: usize, run: &[(usize, f64)]) {
+    for (k, tree) in trees.iter_mut().enumerate() {
+        let weights: Vec<f64> = run
+            .iter()
+            .map(|&(kind, weight)| if kind == k { weight } else { 0.0 })
+            .collect();
+        tree.set_many(start, &weights);
+    }
+}
 
 /// Push and grasp rings with proportional prioritisation and annealed importance sampling.
 #[derive(Debug, PartialEq, Serialize, Deserialize)]
@@ -199,6 +227,8 @@ pub struct PrioritizedReplay {
     epsilon: f64,
     push: Ring,
     grasp: Ring,
+    /// The share of each batch drawn from positive rewards; `None`: one tree a ring.
+    positive_share: Option<f64>,
     /// Items sampled so far over both primitives: the clock of beta's annealing.
     sampled: u64,
     /// Priority updates dropped because their slot had been overwritten (or never existed).
@@ -213,6 +243,12 @@ impl PrioritizedReplay {
     pub fn new(config: &BufferConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let slots = config.slots()?;
+        let kinds = if config.positive_share.is_some() {
+            2
+        } else {
+            1
+        };
+        let trees = || (0..kinds).map(|_| SumTree::new(slots)).collect();
         Ok(Self {
             alpha: config.alpha,
             beta_start: config.beta_start,
@@ -220,9 +256,10 @@ impl PrioritizedReplay {
             epsilon: config.priority_epsilon,
             push: Ring::new(slots),
             grasp: Ring::new(slots),
+            positive_share: config.positive_share,
             sampled: 0,
             stale_updates: 0,
-            trees: Trees(vec![SumTree::new(slots), SumTree::new(slots)]),
+            trees: Trees(vec![trees(), trees()]),
         })
     }
 
@@ -239,22 +276,34 @@ impl PrioritizedReplay {
 
     /// Builds the sum trees from the rings' priorities (a snapshot just read).
     pub(crate) fn rebuild_trees(&mut self) {
+        let (kinds, kind) = (self.kinds(), self.kind_of());
         self.trees = Trees(vec![
-            self.push.tree(self.alpha),
-            self.grasp.tree(self.alpha),
+            self.push.trees(self.alpha, kinds, kind),
+            self.grasp.trees(self.alpha, kinds, kind),
         ]);
     }
 
-    fn tree(&self, primitive: Primitive) -> &SumTree {
+    /// Kinds of reward a ring's trees tell apart: two with a positive share, else one.
+    fn kinds(&self) -> usize {
+        if self.positive_share.is_some() { 2 } else { 1 }
+    }
+
+    /// The tree an item weighs in: 1 for a positive reward when kinds are told apart, else 0.
+    fn kind_of(&self) -> impl Fn(&StoredTransition) -> usize + Copy + use<> {
+        let split = self.positive_share.is_some();
+        move |item| usize::from(split && item.reward > 0.0)
+    }
+
+    fn trees(&self, primitive: Primitive) -> &[SumTree] {
         &self.trees.0[primitive as usize]
     }
 
-    /// The ring of `primitive` and its sum tree.
-    fn ring_and_tree_mut(&mut self, primitive: Primitive) -> (&mut Ring, &mut SumTree) {
-        let tree = &mut self.trees.0[primitive as usize];
+    /// The ring of `primitive` and its sum trees.
+    fn ring_and_trees_mut(&mut self, primitive: Primitive) -> (&mut Ring, &mut [SumTree]) {
+        let trees = &mut self.trees.0[primitive as usize];
         match primitive {
-            Primitive::Push => (&mut self.push, tree),
-            Primitive::Grasp => (&mut self.grasp, tree),
+            Primitive::Push => (&mut self.push, trees),
+            Primitive::Grasp => (&mut self.grasp, trees),
         }
     }
 
@@ -342,32 +391,30 @@ impl PrioritizedReplay {
                 check_priority(*p)?;
             }
         }
-        let (alpha, epsilon) = (self.alpha, self.epsilon);
+        let (alpha, epsilon, kind_of) = (self.alpha, self.epsilon, self.kind_of());
         let mut keys = Vec::with_capacity(items.len());
-        // Per primitive, the first slot of the run not yet in the tree and its weights.
-        let mut runs: [(usize, Vec<f64>); 2] = Default::default();
+        // Per primitive, the first slot of the run not yet in the trees and its kinds and
+        // weights.
+        let mut runs: [(usize, Vec<(usize, f64)>); 2] = Default::default();
         for (transition, priority) in items {
             let primitive = transition.primitive();
-            let (ring, tree) = self.ring_and_tree_mut(primitive);
+            let kind = kind_of(&transition);
+            let (ring, trees) = self.ring_and_trees_mut(primitive);
             let (slot, generation, p) = ring.put(transition, priority, epsilon);
-            let (start, weights) = &mut runs[primitive as usize];
-            if *start + weights.len() != slot {
-                tree.set_many(*start, weights);
-                (*start, *weights) = (slot, Vec::new());
+            let (start, run) = &mut runs[primitive as usize];
+            if *start + run.len() != slot {
+                set_run(trees, *start, run);
+                (*start, *run) = (slot, Vec::new());
             }
-            weights.push(p.powf(alpha));
+            run.push((kind, p.powf(alpha)));
             keys.push(Key {
                 primitive,
                 slot: slot as u32,
                 generation,
             });
         }
-        for (primitive, (start, weights)) in
-            [Primitive::Push, Primitive::Grasp].into_iter().zip(runs)
-        {
-            self.ring_and_tree_mut(primitive)
-                .1
-                .set_many(start, &weights);
+        for (primitive, (start, run)) in [Primitive::Push, Primitive::Grasp].into_iter().zip(runs) {
+            set_run(self.ring_and_trees_mut(primitive).1, start, &run);
         }
         Ok(keys)
     }
@@ -376,8 +423,8 @@ impl PrioritizedReplay {
     /// counts a stale update, when that item has been overwritten.
     pub fn update_priority(&mut self, key: &Key, priority: f64) -> Result<bool, ReplayError> {
         check_priority(priority)?;
-        let (alpha, epsilon) = (self.alpha, self.epsilon);
-        let (ring, tree) = self.ring_and_tree_mut(key.primitive);
+        let (alpha, epsilon, kind_of) = (self.alpha, self.epsilon, self.kind_of());
+        let (ring, trees) = self.ring_and_trees_mut(key.primitive);
         let Some(slot) = ring.live_slot(key) else {
             self.stale_updates += 1;
             return Ok(false);
@@ -385,14 +432,22 @@ impl PrioritizedReplay {
         let p = priority.max(epsilon);
         ring.max_priority = ring.max_priority.max(p);
         ring.priorities.set(slot, p);
-        tree.set(slot, p.powf(alpha));
+        // One tree a ring needs no look at the item (a scattered read).
+        let kind = if trees.len() == 1 {
+            0
+        } else {
+            kind_of(&ring.items[slot])
+        };
+        trees[kind].set(slot, p.powf(alpha));
         Ok(true)
     }
 
     /// Draws `n` items of `primitive` with replacement, with probability proportional to
     /// priority^alpha, one from each of `n` equal strata of the total (lower variance than
     /// independent draws, the same marginal probabilities), and their importance-sampling
-    /// weights at the current beta. Advances beta's clock by `n`.
+    /// weights at the current beta. With a positive share, that share of the draws (in
+    /// expectation) comes from the positive rewards' tree and the rest from the other's,
+    /// each so drawn; the weights still undo priority alone. Advances beta's clock by `n`.
     pub fn sample(
         &mut self,
         primitive: Primitive,
@@ -407,54 +462,68 @@ impl PrioritizedReplay {
         }
         let beta = self.beta();
         self.sampled += n as u64;
-        let (ring, tree) = (self.ring(primitive), self.tree(primitive));
-        // Every live slot has at least epsilon^alpha > 0, so the total is positive.
-        let total = tree.total();
+        let ring = self.ring(primitive);
         let len = ring.items.len() as f64;
-        let stratum = total / n as f64;
-        let mut items = Vec::with_capacity(n);
-        let mut probabilities = Vec::with_capacity(n);
-        // The searches run a chunk at a time (`SumTree::find_many`), from scratch space on
-        // the stack.
-        const CHUNK: usize = 64;
-        let mut prefixes = [0.0f64; CHUNK];
-        let mut slots = [0usize; CHUNK];
-        let mut generations = [0u64; CHUNK];
-        for start in (0..n).step_by(CHUNK) {
-            let m = CHUNK.min(n - start);
-            for (k, prefix) in prefixes[..m].iter_mut().enumerate() {
-                *prefix = ((start + k) as f64 + rng.random::<f64>()) * stratum;
-            }
-            let found = tree.find_many(&prefixes[..m], &mut slots[..m]);
-            assert!(found, "total is positive");
-            // A loop of bare loads, so that the scattered reads overlap.
-            for (generation, &slot) in generations.iter_mut().zip(&slots[..m]) {
-                *generation = ring.generations[slot];
-            }
-            let found = slots[..m].iter().zip(&generations);
-            for (&slot, &generation) in found {
-                let probability = tree.get(slot) / total;
-                probabilities.push(probability);
-                items.push(BatchItem {
+        let mut batch = Batch {
+            items: Vec::with_capacity(n),
+            probabilities: Vec::with_capacity(n),
+            beta,
+        };
+        let trees = self.trees(primitive);
+        // Zipped with the trees: a ring of one tree takes the first share alone.
+        let shares = self.kind_shares(trees);
+        // The weights undo priority alone, as without a share: the share is meant to change
+        // what is learned from, as the authors' replay does.
+        let total: f64 = trees.iter().map(SumTree::total).sum();
+
+        let mut left = n;
+        for (k, (tree, share)) in trees.iter().zip(shares).enumerate() {
+            let draws = if k + 1 == trees.len() {
+                left
+            } else {
+                // The share's whole draws, and one more with its fraction's probability.
+                let expected = n as f64 * share;
+                let whole = expected.floor();
+                (whole as usize + usize::from(rng.random::<f64>() < expected - whole)).min(left)
+            };
+            left -= draws;
+            let tree_total = tree.total();
+            draw(tree, ring, draws, rng, |slot, generation| {
+                let weight = tree.get(slot);
+                batch.probabilities.push(share * (weight / tree_total));
+                batch.items.push(BatchItem {
                     key: Key {
                         primitive,
                         slot: slot as u32,
                         generation,
                     },
-                    weight: (len * probability).powf(-beta) as f32,
+                    weight: (len * (weight / total)).powf(-beta) as f32,
                     transition: &ring.items[slot],
                 });
-            }
+            });
         }
-        let max_weight = items.iter().map(|i| i.weight).fold(0.0f32, f32::max);
-        for item in &mut items {
+        let max_weight = batch.items.iter().map(|i| i.weight).fold(0.0f32, f32::max);
+        for item in &mut batch.items {
             item.weight /= max_weight;
         }
-        Ok(Batch {
-            items,
-            probabilities,
-            beta,
-        })
+        Ok(batch)
+    }
+
+    /// The expected share of a batch each of a ring's trees gives: all from the one tree,
+    /// or the positive share from the positive tree, the whole batch from one whose other
+    /// is empty.
+    fn kind_shares(&self, trees: &[SumTree]) -> [f64; 2] {
+        match (self.positive_share, trees) {
+            (Some(share), [other, positive]) => {
+                let positive = match (other.total() > 0.0, positive.total() > 0.0) {
+                    (true, true) => share,
+                    (false, _) => 1.0,
+                    (true, false) => 0.0,
+                };
+                [1.0 - positive, positive]
+            }
+            _ => [1.0, 0.0],
+        }
     }
 
     /// Checks every stored observation's bytes against its hash (a snapshot just read).
@@ -479,6 +548,41 @@ impl PrioritizedReplay {
             }
         }
         Ok(())
+    }
+}
+
+/// Draws `n` slots from `tree`, one from each of `n` equal strata of its total, and hands
+/// each to `visit` with its generation in `ring`.
+fn draw(
+    tree: &SumTree,
+    ring: &Ring,
+    n: usize,
+    rng: &mut impl Rng,
+    mut visit: impl FnMut(usize, u64),
+) {
+    // Every live slot of a tree drawn from has at least epsilon^alpha > 0, so its total is
+    // positive.
+    let stratum = tree.total() / n as f64;
+    // The searches run a chunk at a time (`SumTree::find_many`), from scratch space on the
+    // stack.
+    const CHUNK: usize = 64;
+    let mut prefixes = [0.0f64; CHUNK];
+    let mut slots = [0usize; CHUNK];
+    let mut generations = [0u64; CHUNK];
+    for start in (0..n).step_by(CHUNK) {
+        let m = CHUNK.min(n - start);
+        for (k, prefix) in prefixes[..m].iter_mut().enumerate() {
+            *prefix = ((start + k) as f64 + rng.random::<f64>()) * stratum;
+        }
+        let found = tree.find_many(&prefixes[..m], &mut slots[..m]);
+        assert!(found, "total is positive");
+        // A loop of bare loads, so that the scattered reads overlap.
+        for (generation, &slot) in generations.iter_mut().zip(&slots[..m]) {
+            *generation = ring.generations[slot];
+        }
+        for (&slot, &generation) in slots[..m].iter().zip(&generations) {
+            visit(slot, generation);
+        }
     }
 }
 

@@ -28,7 +28,7 @@ use experience::PackedObservation;
 
 const MAGIC: &[u8; 8] = b"PGREPLAY";
 /// Bump when the payload's layout changes.
-const VERSION: u32 = 4;
+const VERSION: u32 = 5;
 const HEADER: usize = 8 + 4 + 8 + 8;
 
 /// Counts and hashes what passes through, so the payload streams to disk without a copy.

@@ -139,6 +139,117 @@ fn importance_weights_follow_the_formula_on_a_hand_case() {
     assert_eq!((seen_a, seen_b), (16, 48));
 }
 
+/// A replay of `positives` grasps rewarded 1 and `others` rewarded 0, all at priority 1, in
+/// that order.
+fn rewarded_grasps(config: &BufferConfig, positives: u64, others: u64) -> PrioritizedReplay {
+    let mut replay = PrioritizedReplay::new(config).unwrap();
+    for episode in 0..positives + others {
+        let mut grasp = step(episode, 0, Primitive::Grasp, 1);
+        grasp.reward = if episode < positives { 1.0 } else { 0.0 };
+        replay.insert(store(grasp), Some(1.0)).unwrap();
+    }
+    replay
+}
+
+/// The share of positive rewards among `batches` batches of `n`.
+fn positive_share_drawn(replay: &mut PrioritizedReplay, batches: usize, n: usize) -> f64 {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut positives = 0;
+    for _ in 0..batches {
+        let batch = replay.sample(Primitive::Grasp, n, &mut rng).unwrap();
+        positives += batch
+            .items
+            .iter()
+            .filter(|i| i.transition.reward > 0.0)
+            .count();
+    }
+    positives as f64 / (batches * n) as f64
+}
+
+#[test]
+fn a_positive_share_draws_that_share_from_positive_rewards_and_weighs_it_back() {
+    let cfg = BufferConfig {
+        beta_start: 1.0,
+        ..config(100)
+    };
+    // 10 positives of 100 at equal priority: a tenth of the draws, or half with the share.
+    let mut plain = rewarded_grasps(&cfg, 10, 90);
+    let drawn = positive_share_drawn(&mut plain, 2_000, 4);
+    assert!((drawn - 0.1).abs() < 0.01, "{drawn}");
+    let balanced = BufferConfig {
+        positive_share: Some(0.5),
+        ..cfg
+    };
+    let mut replay = rewarded_grasps(&balanced, 10, 90);
+    let drawn = positive_share_drawn(&mut replay, 2_000, 4);
+    assert!((drawn - 0.5).abs() < 0.01, "{drawn}");
+    // An odd batch rounds at random, the share kept in expectation.
+    let drawn = positive_share_drawn(&mut replay, 4_000, 3);
+    assert!((drawn - 0.5).abs() < 0.01, "{drawn}");
+
+    // P(i) = half the batch times the item's share of its kind. The weights undo priority
+    // alone, not the share, which is meant to change what is learned from: at equal
+    // priorities every weight is 1, a positive drawn nine times as often as an other.
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let batch = replay.sample(Primitive::Grasp, 4, &mut rng).unwrap();
+    let mut kinds = [0, 0];
+    for (item, &probability) in batch.items.iter().zip(&batch.probabilities) {
+        let positive = item.transition.reward > 0.0;
+        let expected = if positive { 0.5 / 10.0 } else { 0.5 / 90.0 };
+        assert!((probability - expected).abs() < 1e-12, "{probability}");
+        assert_eq!(item.weight, 1.0);
+        kinds[usize::from(positive)] += 1;
+    }
+    assert_eq!(kinds, [2, 2]);
+    // A priority raised within a kind is weighed back as without a share: 9 others at 1
+    // and one at 8 (p^alpha 8^0.6), 10 positives at 1; N = 20, beta 1.
+    let key = batch
+        .items
+        .iter()
+        .find(|i| i.transition.reward == 0.0)
+        .unwrap()
+        .key;
+    replay.update_priority(&key, 8.0).unwrap();
+    let raised = 8.0f64.powf(0.6);
+    let total = 19.0 + raised;
+    let batch = replay.sample(Primitive::Grasp, 64, &mut rng).unwrap();
+    let weight = |p: f64| (100.0 * p / total).powf(-1.0);
+    let largest = weight(1.0);
+    for item in &batch.items {
+        let p = if item.key == key { raised } else { 1.0 };
+        let expected = (weight(p) / largest) as f32;
+        assert!(
+            (item.weight - expected).abs() < 1e-6,
+            "{} {expected}",
+            item.weight
+        );
+    }
+    assert!(batch.items.iter().any(|i| i.key == key));
+}
+
+#[test]
+fn at_a_positive_share_a_kind_with_nothing_left_gives_the_whole_batch_to_the_other() {
+    let balanced = BufferConfig {
+        positive_share: Some(0.5),
+        ..config(2)
+    };
+    // Only positives, then only others: no draw is owed to the missing kind.
+    let mut replay = rewarded_grasps(&balanced, 2, 0);
+    assert_eq!(positive_share_drawn(&mut replay, 100, 4), 1.0);
+    let mut replay = rewarded_grasps(&balanced, 0, 2);
+    assert_eq!(positive_share_drawn(&mut replay, 100, 4), 0.0);
+    // A positive overwritten by others leaves its kind's tree: it is never drawn again.
+    let mut replay = rewarded_grasps(&balanced, 1, 2);
+    assert_eq!(replay.len(Primitive::Grasp), 2);
+    assert_eq!(positive_share_drawn(&mut replay, 100, 4), 0.0);
+    // And an other overwritten by a positive is drawn as one.
+    let mut grasp = step(9, 0, Primitive::Grasp, 1);
+    grasp.reward = 1.0;
+    replay.insert(store(grasp), Some(1.0)).unwrap();
+    let drawn = positive_share_drawn(&mut replay, 1_000, 4);
+    assert!((drawn - 0.5).abs() < 0.03, "{drawn}");
+}
+
 #[test]
 fn beta_anneals_linearly_to_one_over_sampled_items() {
     let cfg = BufferConfig {
@@ -589,9 +700,15 @@ fn only_inserts_of_sampled_primitives_count_toward_the_rate_limit() {
 
 /// A buffer with stored items of both kinds, updated priorities, samples, and an open episode.
 fn busy_buffer() -> ReplayBuffer {
+    busy_buffer_drawing(None)
+}
+
+/// [`busy_buffer`] at a positive share (`[buffer] positive_share`).
+fn busy_buffer_drawing(positive_share: Option<f64>) -> ReplayBuffer {
     let mut buffer = ReplayBuffer::new(
         BufferConfig {
             min_size_to_sample: 2,
+            positive_share,
             ..config(5)
         },
         serving_both(),
@@ -625,20 +742,25 @@ fn reprioritise_sampled(buffer: &mut ReplayBuffer, n: usize, priority: f64, rng:
 
 #[test]
 fn a_snapshot_round_trips_exactly() {
-    let buffer = busy_buffer();
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("round-trip.snap");
-    buffer.save(&path).unwrap();
-    assert!(!PathBuf::from(format!("{}.tmp", path.display())).exists());
-    let mut restored = ReplayBuffer::load(&path).unwrap();
-    assert_eq!(restored, buffer);
-    // And it behaves the same: the same draws from the same seed.
-    let mut original = buffer;
-    let (mut r1, mut r2) = (ChaCha8Rng::seed_from_u64(4), ChaCha8Rng::seed_from_u64(4));
-    let a = original.sample(Primitive::Grasp, 2, &mut r1).unwrap();
-    let b = restored.sample(Primitive::Grasp, 2, &mut r2).unwrap();
-    assert_eq!(a, b);
-    std::fs::remove_file(&path).unwrap();
+    // At a positive share the sum trees rebuilt when read are one per kind of reward.
+    for positive_share in [None, Some(0.5)] {
+        let buffer = busy_buffer_drawing(positive_share);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("round-trip.snap");
+        buffer.save(&path).unwrap();
+        assert!(!PathBuf::from(format!("{}.tmp", path.display())).exists());
+        let mut restored = ReplayBuffer::load(&path).unwrap();
+        assert_eq!(restored, buffer, "{positive_share:?}");
+        // And it behaves the same: the same draws from the same seed.
+        let mut original = buffer;
+        for primitive in [Primitive::Grasp, Primitive::Push] {
+            let (mut r1, mut r2) = (ChaCha8Rng::seed_from_u64(4), ChaCha8Rng::seed_from_u64(4));
+            let a = original.sample(primitive, 4, &mut r1).unwrap();
+            let b = restored.sample(primitive, 4, &mut r2).unwrap();
+            assert_eq!(a, b, "{positive_share:?}");
+        }
+        std::fs::remove_file(&path).unwrap();
+    }
 }
 
 #[test]

@@ -155,6 +155,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("buffer.capacity", "0"),
         ("run.heartbeat_timeout_s", "0.0"),
         ("buffer.samples_per_insert", "0.0"),
+        ("buffer.positive_share", "1.5"),
     ] {
         let err = with(field, value).unwrap_err().to_string();
         assert!(err.starts_with(&format!("run.toml: {field}")), "{err}");
