@@ -73,19 +73,25 @@ fn grasp_trials_are_refused_where_the_grasp_net_is_frozen() {
     );
 }
 
-/// Stage 1's config with `field` (`table.key`) set to `value` (TOML), parsed.
+/// Stage 1's config with `field` (`table.key`, or a top-level key) set to `value` (TOML),
+/// parsed.
 fn stage1_with(field: &str, value: &str) -> anyhow::Result<RunConfig> {
     let stage1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/stage1.toml");
     let text = std::fs::read_to_string(stage1).unwrap();
-    let (table, key) = field.split_once('.').unwrap();
     let mut config: toml::Table = toml::from_str(&text).unwrap();
     let value: toml::Table = toml::from_str(&format!("v = {value}")).unwrap();
-    config
-        .entry(table)
-        .or_insert_with(|| toml::Table::new().into())
-        .as_table_mut()
-        .unwrap()
-        .insert(key.into(), value["v"].clone());
+    let (table, key) = match field.split_once('.') {
+        Some((table, key)) => (
+            config
+                .entry(table)
+                .or_insert_with(|| toml::Table::new().into())
+                .as_table_mut()
+                .unwrap(),
+            key,
+        ),
+        None => (&mut config, field),
+    };
+    table.insert(key.into(), value["v"].clone());
     RunConfig::parse(&toml::to_string(&config).unwrap(), "run.toml")
 }
 
@@ -156,6 +162,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("run.heartbeat_timeout_s", "0.0"),
         ("buffer.samples_per_insert", "0.0"),
         ("buffer.positive_share", "1.5"),
+        ("crowded_goals", "-0.5"),
     ] {
         let err = with(field, value).unwrap_err().to_string();
         assert!(err.starts_with(&format!("run.toml: {field}")), "{err}");

@@ -1,6 +1,6 @@
 //! Scene measurements the rewards need, as the paper defines them at 2 mm pixels and scaled
-//! to the grid's pixel size: the occupancy ratio of the ring around the goal, and change
-//! detection around the goal after a push.
+//! to the grid's pixel size: the occupancy ratio of the ring around the goal (and the object
+//! whose ring is most occupied), and change detection around the goal after a push.
 
 use image::{GrayImage, Luma};
 use imageproc::distance_transform::Norm;
@@ -68,6 +68,16 @@ pub fn occupancy_ratio(maps: &Heightmaps, goal: ObjectId) -> f32 {
     } else {
         occupied as f32 / ring as f32
     }
+}
+
+/// Of the objects seen in `maps`, the one whose ring is most occupied ([`occupancy_ratio`]);
+/// the highest id among equals, `None` when none is seen.
+pub fn most_crowded(maps: &Heightmaps) -> Option<ObjectId> {
+    maps.visible_ids()
+        .into_iter()
+        .map(|id| (occupancy_ratio(maps, id), id))
+        .max_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
+        .map(|(_, id)| id)
 }
 
 /// The goal's convex hull in `maps`, filled and dilated by the ring width.

@@ -1,6 +1,6 @@
 //! The camera's heightmaps against known geometry, and the measurements built on them.
 
-use sim::measure::{detect_change, occupancy_ratio};
+use sim::measure::{detect_change, most_crowded, occupancy_ratio};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::{CENTRE, X_MIN, Y_MIN};
 use sim::{ANY_OBJECT, Camera, Heightmaps, ShapeKind, SimConfig, Tabletop};
@@ -203,6 +203,26 @@ fn occupancy_rises_with_neighbours_and_is_scaled_to_the_pixel_size() {
         1.0,
         "a hidden goal is fully surrounded"
     );
+}
+
+#[test]
+fn the_most_crowded_object_is_the_one_with_neighbours_all_round() {
+    // The centre cube has four neighbours; each neighbour has one (the centre) within its
+    // ring.
+    let crowded = render(&surrounded(4));
+    assert_eq!(most_crowded(&crowded), Some(1));
+    // Whatever the scene, no object seen has a more occupied ring than the one chosen.
+    let pair = render(&surrounded(1));
+    let best = most_crowded(&pair).unwrap();
+    let others = pair.visible_ids();
+    assert!(
+        others
+            .iter()
+            .all(|&id| occupancy_ratio(&pair, id) <= occupancy_ratio(&pair, best))
+    );
+    let mut empty = surrounded(0);
+    empty.remove_object(1);
+    assert_eq!(most_crowded(&render(&empty)), None);
 }
 
 #[test]

@@ -22,7 +22,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use sim::measure::detect_change;
+use sim::measure::{detect_change, most_crowded};
 use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
 use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weights};
 
@@ -304,8 +304,9 @@ impl<'a> Environment<'a> {
     }
 
     /// Between episodes, starts one: on a new scene when this one is cleared or stuck, for
-    /// a visible object at random (none while nothing is visible: it tries again next
-    /// time). A new scene ends the chain of the step waiting: returned, to ship as it is.
+    /// a visible object at random, or the most crowded one in the config's share of
+    /// episodes (none while nothing is visible: it tries again next time). A new scene ends
+    /// the chain of the step waiting: returned, to ship as it is.
     fn episode_start(&mut self) -> Result<Option<Unlabelled>> {
         if self.episode.is_some() {
             return Ok(None);
@@ -321,8 +322,17 @@ impl<'a> Environment<'a> {
             obs = self.camera.render(&self.tabletop);
             self.failures_in_a_row = 0;
         }
-        let visible = obs.visible_ids();
-        if let Some(&goal) = visible.get(self.rng.random_range(0..visible.len().max(1))) {
+        // No draw at a share of 0: the episodes' goals stay those of the seed without it.
+        let share = self.config.crowded_goals;
+        let goal = if share > 0.0 && self.rng.random::<f64>() < share {
+            most_crowded(&obs)
+        } else {
+            let visible = obs.visible_ids();
+            visible
+                .get(self.rng.random_range(0..visible.len().max(1)))
+                .copied()
+        };
+        if let Some(goal) = goal {
             self.episode = Some(Episode { obs, goal, step: 0 });
         }
         Ok(chain_end)
