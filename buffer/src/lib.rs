@@ -15,6 +15,7 @@ pub mod error;
 pub mod rate_limit;
 pub mod relabel;
 pub mod replay;
+mod ring;
 pub mod snapshot;
 pub mod store;
 pub mod sum_tree;

@@ -22,7 +22,7 @@ use xxhash_rust::xxh3::Xxh3;
 
 use crate::chunks::SharedChunks;
 use crate::error::{SnapshotError, SnapshotErrorKind};
-use crate::replay::Ring;
+use crate::ring::Ring;
 use crate::store::{ReplayBuffer, ReplayCopy};
 use experience::PackedObservation;
 
