@@ -83,8 +83,8 @@ pub fn torch_figures(python: &Path, run: &TrainingPeerRun) -> Result<Map<String,
         bail!("the peer trains ordinary nets without an outcome head");
     }
     let learning = run.learning;
-    if learning.mirror_grasps || learning.translate_samples > 0 {
-        bail!("the peer builds no mirrored or translated items");
+    if learning.mirror_grasps || learning.translate_samples > 0 || learning.spot_q {
+        bail!("the peer builds no mirrored, translated or SPOT-Q items");
     }
     if run
         .samples

@@ -41,6 +41,11 @@ pub struct LearningConfig {
     /// another phase of the nets' coarse grid. 0 (the paper) teaches no copy; any other
     /// value doubles an update's items.
     pub translate_samples: usize,
+    /// Good Robot's SPOT-Q for grasps: where a grasp sample's Q map at its executed rotation
+    /// peaks outside the sample's goal mask (a grasp there cannot take the goal), the update
+    /// also teaches that pixel a failed grasp's label, 0. Samples whose goal is hidden are
+    /// left as they are. Off (the paper) by default; it costs a forward pass of the batch.
+    pub spot_q: bool,
     /// With an outcome head on the grasp net (`net.grasp_outcome_head`), each grasp's
     /// cross-entropy between that head's logit at the executed pixel and whether the grasp
     /// took the goal, times this, is added to the update's loss (weighted per sample as
@@ -69,6 +74,7 @@ impl Default for LearningConfig {
             publish_average: true,
             mirror_grasps: false,
             translate_samples: 0,
+            spot_q: false,
             outcome_loss_weight: 1.0,
             target_update_every: 0,
         }

@@ -1,7 +1,8 @@
 //! One learner update: the Q value at each sample's executed pixel (and, for a grasp, the
 //! same pixel at the symmetric rotation k + 8: a parallel jaw is symmetric; with
 //! `mirror_grasps`, also the grasp's mirror image; with `translate_samples`, also the
-//! sample moved a few pixels), the Huber loss against the label weighted by the replay's
+//! sample moved a few pixels; with `spot_q`, also where a grasp's Q map peaks outside its
+//! goal, at label 0), the Huber loss against the label weighted by the replay's
 //! importance-sampling weight, and an Adam step on the net being trained. With an outcome
 //! head on the grasp net, its cross-entropy against the grasp's outcome at the same pixels is
 //! added. Every other pixel contributes nothing.
@@ -204,28 +205,46 @@ impl Trainer {
             .enumerate()
             .map(|(i, s)| {
                 let moved = translated.get(i).map(|(input, shift)| (input, *shift));
-                items(s, mirrors.get(i), moved)
+                taught_items(&s.input, s.action, mirrors.get(i), moved)
             })
             .collect();
         let per_sample = items.first().map_or(1, Vec::len);
-        let items: Vec<Item> = items.into_iter().flatten().collect();
+        let mut items: Vec<Item> = items.into_iter().flatten().collect();
+        let own_items = items.len();
+        // SPOT-Q's items last: a grasp at each sample's peak (both of its rotations), label 0.
+        let spots: Vec<(usize, usize)> = self
+            .spot_grasps(samples)?
+            .into_iter()
+            .map(|(i, peak)| {
+                let peak = taught_items(&samples[i].input, peak, None, None);
+                let count = peak.len();
+                items.extend(peak);
+                (i, count)
+            })
+            .collect();
         let inputs: Vec<(&NetInput, u8)> = items.iter().map(|i| (i.input, i.rotation)).collect();
         let pixels: Vec<(usize, usize)> = items.iter().map(|i| i.pixel).collect();
         let (q, logits) = self
             .nets
             .at_pixels(primitive, &inputs, &pixels, &self.geometry)?;
 
-        let repeat = |f: &dyn Fn(&Sample) -> f32| -> Vec<f32> {
+        // Per item: each sample's value for its own items, then `spot`'s for its SPOT-Q item.
+        let repeat = |f: &dyn Fn(&Sample) -> f32, spot: &dyn Fn(&Sample) -> f32| -> Vec<f32> {
             samples
                 .iter()
                 .flat_map(|s| std::iter::repeat_n(f(s), per_sample))
+                .chain(
+                    spots
+                        .iter()
+                        .flat_map(|&(i, count)| std::iter::repeat_n(spot(&samples[i]), count)),
+                )
                 .collect()
         };
-        let labels = repeat(&|s| s.label);
-        let weights = repeat(&|s| s.weight);
+        let labels = repeat(&|s| s.label, &|_| 0.0);
+        let weights = repeat(&|s| s.weight, &|s| s.weight);
         let mut loss = executed_pixel_loss(q.clone(), &labels, &weights, self.config.huber_delta);
         if let Some(logits) = logits {
-            let succeeded = repeat(&|s| f32::from(u8::from(s.succeeded)));
+            let succeeded = repeat(&|s| f32::from(u8::from(s.succeeded)), &|_| 0.0);
             let outcome = outcome_loss(logits, &succeeded, &weights);
             loss = loss + outcome.mul_scalar(self.config.outcome_loss_weight);
         }
@@ -256,7 +275,11 @@ impl Trainer {
         }
 
         // Report each sample's own rotation (the first of its items).
-        let predicted: Vec<f32> = q_values.iter().step_by(per_sample).copied().collect();
+        let predicted: Vec<f32> = q_values[..own_items]
+            .iter()
+            .step_by(per_sample)
+            .copied()
+            .collect();
         let td_errors = samples
             .iter()
             .zip(&predicted)
@@ -293,6 +316,50 @@ impl Trainer {
                 shifts[rng.random_range(0..shifts.len())]
             })
             .collect()
+    }
+
+    /// SPOT-Q's grasps when the config asks for them ([`LearningConfig::spot_q`]), as
+    /// (sample, grasp): for each grasp sample whose goal is seen, the grasp at its executed
+    /// rotation where the current nets' Q map there peaks, if that lies outside the goal
+    /// mask. The nets in inference form, as the actors act with them.
+    fn spot_grasps(&self, samples: &[Sample]) -> Result<Vec<(usize, Action)>, LearnerError> {
+        if !self.config.spot_q || self.trained != TrainedNet::Grasp {
+            return Ok(Vec::new());
+        }
+        let seen: Vec<usize> = (0..samples.len())
+            .filter(|&i| samples[i].input.mask.iter().any(|&m| m > 0.0))
+            .collect();
+        if seen.is_empty() {
+            return Ok(Vec::new());
+        }
+        let items: Vec<(&NetInput, u8)> = seen
+            .iter()
+            .map(|&i| (&samples[i].input, samples[i].action.rotation))
+            .collect();
+        let maps = self
+            .nets
+            .valid()
+            .q_maps(Primitive::Grasp, &items, &self.geometry)?;
+        let maps = maps.into_data().try_to_vec::<f32>().expect("f32 Q maps");
+        let side = self.geometry.side();
+        Ok(seen
+            .into_iter()
+            .zip(maps.chunks_exact(side * side))
+            .filter_map(|(i, map)| {
+                let (peak, _) = map
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, q)| !q.is_nan())
+                    .max_by(|a, b| a.1.total_cmp(b.1))?;
+                let (row, col) = (peak / side, peak % side);
+                let action = Action {
+                    row,
+                    col,
+                    ..samples[i].action
+                };
+                (samples[i].input.mask[peak] == 0.0).then_some((i, action))
+            })
+            .collect())
     }
 
     /// Starts from other weights (an earlier stage's nets), and restarts any average and
@@ -386,13 +453,14 @@ struct Item<'a> {
     pixel: (usize, usize),
 }
 
-/// What a sample teaches, its own action first: a grasp also at the symmetric rotation
-/// k + 8; those again on `translated` (its observation moved by (rows, columns)) at the
-/// moved pixel; and a grasp on `mirror` (its observation mirrored) at the mirrored pixel
-/// and angle. A reflection takes the jaw angle a to -a, or to pi - a, depending on the
+/// What a sample (its input and action) teaches, its own action first: a grasp also at
+/// the symmetric rotation k + 8; those again on `translated` (its observation moved by
+/// (rows, columns)) at the moved pixel; and a grasp on `mirror` (its observation mirrored)
+/// at the mirrored pixel and angle. A reflection takes the jaw angle a to -a, or to pi - a, depending on the
 /// axis; the jaws' symmetry makes both the same grasp, so both rotations are taught.
-fn items<'a>(
-    sample: &'a Sample,
+fn taught_items<'a>(
+    input: &'a NetInput,
+    action: Action,
     mirror: Option<&'a NetInput>,
     translated: Option<(&'a NetInput, (isize, isize))>,
 ) -> Vec<Item<'a>> {
@@ -401,10 +469,10 @@ fn items<'a>(
         rotation: k,
         row,
         col,
-    } = sample.action;
+    } = action;
     let half = ROTATIONS / 2;
     let own = Item {
-        input: &sample.input,
+        input,
         rotation: k,
         pixel: (row, col),
     };

@@ -484,6 +484,86 @@ fn a_sample_and_its_translated_copy_teach_as_two_samples() {
 }
 
 #[test]
+fn spot_q_teaches_a_grasps_peak_outside_its_goal_a_zero_beside_it() {
+    // With `spot_q` a grasp sample whose Q map (at its rotation, under the nets as published)
+    // peaks outside its goal mask teaches what it and a failed grasp at that peak teach as
+    // two samples; one whose goal is hidden, and a push, teach as without it.
+    let nets = QNets::new(&QNetConfig::default(), &Device::flex());
+    let learning = |spot_q| LearningConfig {
+        learning_rate: 1e-3,
+        spot_q,
+        ..LearningConfig::default()
+    };
+    let loss = |spot_q, trained, batch: &[Sample]| {
+        trainer_from(nets.clone(), learning(spot_q), trained)
+            .train_step(batch)
+            .unwrap()
+            .loss
+    };
+    let close = |a: f32, b: f32| (a - b).abs() <= 1e-5 * b.abs().max(1e-3);
+    let geometry = trainer_from(nets.clone(), learning(false), TrainedNet::Grasp)
+        .geometry()
+        .clone();
+    let mut peaks_outside = 0;
+    for sample in samples(Primitive::Grasp, 1.5) {
+        let map = trainer_from(nets.clone(), learning(false), TrainedNet::Grasp)
+            .published_nets()
+            .q_maps(
+                Primitive::Grasp,
+                &[(&sample.input, sample.action.rotation)],
+                &geometry,
+            )
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let peak = (0..map.len())
+            .max_by(|&a, &b| map[a].total_cmp(&map[b]))
+            .unwrap();
+        let taught = loss(true, TrainedNet::Grasp, std::slice::from_ref(&sample));
+        if sample.input.mask[peak] > 0.0 {
+            let plain = loss(false, TrainedNet::Grasp, std::slice::from_ref(&sample));
+            assert!(
+                close(taught, plain),
+                "peak on the goal: {taught} vs {plain}"
+            );
+            continue;
+        }
+        peaks_outside += 1;
+        let failed = Sample {
+            action: Action {
+                row: peak / 112,
+                col: peak % 112,
+                ..sample.action
+            },
+            label: 0.0,
+            succeeded: false,
+            ..sample.clone()
+        };
+        let both = loss(false, TrainedNet::Grasp, &[sample.clone(), failed]);
+        assert!(
+            close(taught, both),
+            "spot_q's loss {taught}; the sample and a failed grasp at the peak: {both}"
+        );
+        let hidden = Sample {
+            input: NetInput {
+                mask: vec![0.0; sample.input.mask.len()],
+                ..sample.input.clone()
+            },
+            ..sample.clone()
+        };
+        let taught = loss(true, TrainedNet::Grasp, std::slice::from_ref(&hidden));
+        let plain = loss(false, TrainedNet::Grasp, std::slice::from_ref(&hidden));
+        assert!(close(taught, plain), "hidden goal: {taught} vs {plain}");
+    }
+    assert!(peaks_outside > 0, "no sample's map peaks off its goal");
+    let pushes = samples(Primitive::Push, -0.5);
+    let taught = loss(true, TrainedNet::Push, &pushes);
+    let plain = loss(false, TrainedNet::Push, &pushes);
+    assert!(close(taught, plain), "pushes: {taught} vs {plain}");
+}
+
+#[test]
 fn checkpoints_round_trip_to_identical_q_maps() {
     let config = QNetConfig::default();
     let mut trained = trainer(TrainedNet::Grasp);
