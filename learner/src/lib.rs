@@ -9,6 +9,7 @@ pub mod averaging;
 pub mod checkpoint;
 pub mod config;
 pub mod error;
+mod items;
 pub mod pretrain;
 pub mod targets;
 pub mod trainer;

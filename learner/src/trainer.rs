@@ -15,6 +15,7 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::Transaction;
 use burn::tensor::activation::log_sigmoid;
+use policy::QMaps;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -25,6 +26,7 @@ use crate::averaging::polyak_step;
 use crate::checkpoint::SavedNets;
 use crate::config::LearningConfig;
 use crate::error::LearnerError;
+use crate::items::{Item, taught_items};
 use crate::targets::{NextState, double_q_values};
 
 /// One transition to learn from.
@@ -342,24 +344,25 @@ impl Trainer {
             .q_maps(Primitive::Grasp, &items, &self.geometry)?;
         let maps = maps.into_data().try_to_vec::<f32>().expect("f32 Q maps");
         let side = self.geometry.side();
-        Ok(seen
-            .into_iter()
-            .zip(maps.chunks_exact(side * side))
-            .filter_map(|(i, map)| {
-                let (peak, _) = map
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, q)| !q.is_nan())
-                    .max_by(|a, b| a.1.total_cmp(b.1))?;
-                let (row, col) = (peak / side, peak % side);
-                let action = Action {
-                    row,
-                    col,
-                    ..samples[i].action
-                };
-                (samples[i].input.mask[peak] == 0.0).then_some((i, action))
-            })
-            .collect())
+        let everywhere = vec![true; side * side];
+        let mut spots = Vec::new();
+        for (i, map) in seen.into_iter().zip(maps.chunks_exact(side * side)) {
+            let map = QMaps::new(1, side, map.to_vec()).expect("one map of side x side");
+            let Some((_, _, row, col)) = map.best_where(&everywhere) else {
+                continue;
+            };
+            if samples[i].input.mask[row * side + col] == 0.0 {
+                spots.push((
+                    i,
+                    Action {
+                        row,
+                        col,
+                        ..samples[i].action
+                    },
+                ));
+            }
+        }
+        Ok(spots)
     }
 
     /// Starts from other weights (an earlier stage's nets), and restarts any average and
@@ -443,79 +446,6 @@ impl Trainer {
         self.updates = saved.manifest.updates;
         Ok(())
     }
-}
-
-/// One Q value a sample teaches: an observation, a rotation and a pixel.
-#[derive(Clone, Copy)]
-struct Item<'a> {
-    input: &'a NetInput,
-    rotation: u8,
-    pixel: (usize, usize),
-}
-
-/// What a sample (its input and action) teaches, its own action first: a grasp also at
-/// the symmetric rotation k + 8; those again on `translated` (its observation moved by
-/// (rows, columns)) at the moved pixel; and a grasp on `mirror` (its observation mirrored)
-/// at the mirrored pixel and angle. A reflection takes the jaw angle a to -a, or to pi - a, depending on the
-/// axis; the jaws' symmetry makes both the same grasp, so both rotations are taught.
-fn taught_items<'a>(
-    input: &'a NetInput,
-    action: Action,
-    mirror: Option<&'a NetInput>,
-    translated: Option<(&'a NetInput, (isize, isize))>,
-) -> Vec<Item<'a>> {
-    let Action {
-        primitive,
-        rotation: k,
-        row,
-        col,
-    } = action;
-    let half = ROTATIONS / 2;
-    let own = Item {
-        input,
-        rotation: k,
-        pixel: (row, col),
-    };
-    let mut items = vec![own];
-    if primitive == Primitive::Grasp {
-        items.push(Item {
-            rotation: (k + half) % ROTATIONS,
-            ..own
-        });
-    }
-    if let Some((input, (rows, cols))) = translated {
-        let pixel = (
-            row.checked_add_signed(rows)
-                .expect("a shift keeps the pixel on the map"),
-            col.checked_add_signed(cols)
-                .expect("a shift keeps the pixel on the map"),
-        );
-        let moved: Vec<Item> = items
-            .iter()
-            .map(|item| Item {
-                input,
-                rotation: item.rotation,
-                pixel,
-            })
-            .collect();
-        items.extend(moved);
-    }
-    if primitive == Primitive::Grasp
-        && let Some(mirror) = mirror
-    {
-        let pixel = (row, mirror.side - 1 - col);
-        for rotation in [
-            (ROTATIONS - k) % ROTATIONS,
-            (ROTATIONS + half - k) % ROTATIONS,
-        ] {
-            items.push(Item {
-                input: mirror,
-                rotation,
-                pixel,
-            });
-        }
-    }
-    items
 }
 
 /// The weighted Huber loss of the Q values at the executed pixels against their labels,

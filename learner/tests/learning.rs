@@ -517,9 +517,11 @@ fn spot_q_teaches_a_grasps_peak_outside_its_goal_a_zero_beside_it() {
             .into_data()
             .try_to_vec::<f32>()
             .unwrap();
-        let peak = (0..map.len())
-            .max_by(|&a, &b| map[a].total_cmp(&map[b]))
+        let (_, _, row, col) = policy::QMaps::new(1, 112, map)
+            .unwrap()
+            .best_where(&[true; 112 * 112])
             .unwrap();
+        let peak = row * 112 + col;
         let taught = loss(true, TrainedNet::Grasp, std::slice::from_ref(&sample));
         if sample.input.mask[peak] > 0.0 {
             let plain = loss(false, TrainedNet::Grasp, std::slice::from_ref(&sample));
