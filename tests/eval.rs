@@ -136,6 +136,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "policy.goal_guard=0.02",
             "--set",
             "sim.guarded_push_descent=true",
+            "--set",
+            "policy.free_border=0.25",
         ],
     );
     assert_eq!(
@@ -143,9 +145,10 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["grasp_margin"].as_f64().unwrap(),
             margined["q_star"].as_f64().unwrap(),
             margined["goal_guard"].as_f64(),
-            margined["guarded_push_descent"].as_bool()
+            margined["guarded_push_descent"].as_bool(),
+            margined["free_border"].as_f64()
         ),
-        (0.02, 1000.0, Some(0.02), Some(true))
+        (0.02, 1000.0, Some(0.02), Some(true), Some(0.25))
     );
 
     // The authors' protocol: their rule and Q*, random scenes by the Q* alone, and learning

@@ -172,6 +172,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         grasp_margin: agent.policy.grasp_margin,
         goal_guard: agent.policy.goal_guard,
         push_reach: agent.policy.push_reach,
+        free_border: agent.policy.free_border,
         guarded_push_descent: config.sim.guarded_push_descent,
         goal_agnostic: args.goal_agnostic,
         learning: eval.learning,

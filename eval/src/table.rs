@@ -35,6 +35,8 @@ pub(crate) struct EvalReport {
     pub(crate) goal_guard: Option<f32>,
     /// `[policy] push_reach`, metres, where pushes were kept near the goal.
     pub(crate) push_reach: Option<f32>,
+    /// `[policy] free_border`, where a goal with a free border ring was grasped below Q*.
+    pub(crate) free_border: Option<f32>,
     /// `[sim] guarded_push_descent`.
     pub(crate) guarded_push_descent: bool,
     pub(crate) goal_agnostic: bool,
@@ -52,7 +54,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -77,6 +79,10 @@ pub(crate) fn print_table(report: &EvalReport) {
         report
             .push_reach
             .map(|reach| format!(", pushes within {} mm of the goal", 1000.0 * reach))
+            .unwrap_or_default(),
+        report
+            .free_border
+            .map(|free| format!(", grasp at a border ring at most {free} occupied"))
             .unwrap_or_default(),
         if report.guarded_push_descent {
             ", guarded push descent"

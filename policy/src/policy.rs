@@ -58,6 +58,11 @@ pub struct PolicyConfig {
     /// chosen nor drawn when exploring ([`pushes_near_goal`]): they cannot change the goal's
     /// surroundings. `None`: every push start is open, as in the paper.
     pub push_reach: Option<f32>,
+    /// Under the Q* rules: grasp, whatever the goal's grasp Q, once at most this share of
+    /// the goal's border ring is occupied ([`occupancy_ratio`]). A goal with nothing around
+    /// it needs no push, and pushing a free goal on is how most goals leave the table.
+    /// `None`: Q* alone decides, as in the paper.
+    pub free_border: Option<f32>,
 }
 
 /// How the policy chooses between pushing and grasping.
@@ -89,6 +94,7 @@ impl Default for PolicyConfig {
             crowded_border: 0.3,
             goal_guard: None,
             push_reach: None,
+            free_border: None,
         }
     }
 }
@@ -104,6 +110,9 @@ impl PolicyConfig {
         }
         if let Some(reach) = self.push_reach {
             ConfigError::check_range("push_reach", reach, 0.0..)?;
+        }
+        if let Some(free) = self.free_border {
+            ConfigError::check_range("free_border", free, 0.0..=1.0)?;
         }
         ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
         ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
@@ -150,6 +159,9 @@ pub enum Reason {
     /// Push ([`Rule::ThresholdOrCrowded`]): the goal's grasp Q exceeds Q*, but its border
     /// ring is more occupied than `crowded_border`.
     BorderCrowded,
+    /// Grasp: the goal's grasp Q is at most Q*, but its border ring is at most
+    /// `free_border` occupied.
+    BorderFree,
     /// Grasp (VPG's rule): the goal's grasp Q is at least the best push Q.
     GraspQHigher,
     /// Push (VPG's rule): the best push Q is higher than the goal's grasp Q.
@@ -323,7 +335,8 @@ pub fn push_region(
 
 /// Picks the next action. Grasp when `mode` is grasp-only, the push budget is spent, or
 /// there are no push maps; otherwise the config's [`Rule`] decides (the paper's: grasp when
-/// the goal's grasp Q exceeds Q*, else push). The primitive goes to the argmax of its Q maps
+/// the goal's grasp Q exceeds Q*, else push; under `free_border`, also grasp when the goal's
+/// border ring is free). The primitive goes to the argmax of its Q maps
 /// over its allowed pixels ([`grasp_region`], [`push_region`]) and all rotations, or,
 /// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set.
 /// Deterministic given `rng`.
@@ -369,11 +382,18 @@ pub fn choose(
         && mode == Mode::PushGrasp
         && above
         && occupancy_ratio(obs, input.goal) > config.crowded_border;
+    let free = config.free_border.is_some_and(|free| {
+        matches!(config.rule, Rule::Threshold | Rule::ThresholdOrCrowded)
+            && mode == Mode::PushGrasp
+            && !above
+            && occupancy_ratio(obs, input.goal) <= free
+    });
     let reason = match (best_push_q, config.rule) {
         _ if mode == Mode::GraspOnly => Reason::GraspOnlyMode,
         (_, Rule::Threshold | Rule::ThresholdOrCrowded) if above && !crowded => {
             Reason::AboveThreshold
         }
+        _ if free => Reason::BorderFree,
         _ if input.pushes_so_far >= config.max_pushes => Reason::PushBudgetSpent,
         (None, _) => Reason::NoPushMaps,
         (Some(_), Rule::ThresholdOrCrowded) if crowded => Reason::BorderCrowded,

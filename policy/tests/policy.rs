@@ -185,6 +185,18 @@ fn vpgs_rule_takes_the_primitive_with_the_higher_q_whatever_q_star() {
     );
 }
 
+/// The goal cube with cubes against three of its sides: more than 0.3 of its ring occupied.
+fn crowded_scene() -> Heightmaps {
+    let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(PIXEL_SIZE)).unwrap();
+    cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
+    cube(&mut tabletop, 2, 0.055, 0.0, 0.025);
+    cube(&mut tabletop, 3, 0.0, 0.055, 0.025);
+    cube(&mut tabletop, 4, -0.055, 0.0, 0.025);
+    let crowded = Camera::new(tabletop.grid()).render(&tabletop);
+    assert!(sim::measure::occupancy_ratio(&crowded, GOAL) > 0.3);
+    crowded
+}
+
 #[test]
 fn the_authors_test_rule_pushes_a_goal_with_a_crowded_border_whatever_its_q() {
     let authors = PolicyConfig {
@@ -210,13 +222,7 @@ fn the_authors_test_rule_pushes_a_goal_with_a_crowded_border_whatever_its_q() {
 
     // A cube against two sides of the goal fills more than 0.3 of its ring: a push, even at
     // a grasp Q that passes every threshold, until the push budget is spent.
-    let mut tabletop = Tabletop::new(&SimConfig::with_pixel_size(PIXEL_SIZE)).unwrap();
-    cube(&mut tabletop, GOAL, 0.0, 0.0, 0.025);
-    cube(&mut tabletop, 2, 0.055, 0.0, 0.025);
-    cube(&mut tabletop, 3, 0.0, 0.055, 0.025);
-    cube(&mut tabletop, 4, -0.055, 0.0, 0.025);
-    let crowded = Camera::new(tabletop.grid()).render(&tabletop);
-    assert!(sim::measure::occupancy_ratio(&crowded, GOAL) > 0.3);
+    let crowded = crowded_scene();
     let goal_pixel = pixel(&crowded, 0.0, 0.0);
     let grasp = maps(&crowded, 0.0, &[(3, goal_pixel, 1.9)]);
     let push = maps(&crowded, 0.0, &[(7, pixel(&crowded, 0.0, -0.1), 1.0)]);
@@ -629,4 +635,61 @@ fn mismatched_maps_nan_maps_and_bad_epsilons_are_errors() {
             Err(PolicyError::Epsilon(_))
         ));
     }
+}
+
+#[test]
+fn free_border_grasps_a_goal_with_nothing_around_it_below_q_star() {
+    let free = PolicyConfig {
+        free_border: Some(0.02),
+        ..PolicyConfig::default()
+    };
+    // The fixture's neighbours stand 10 cm off: the goal's ring is free.
+    let f = Fixture::new();
+    assert_eq!(sim::measure::occupancy_ratio(&f.obs, GOAL), 0.0);
+    let grasp = f.grasp(1.5);
+    let decide = |config: &PolicyConfig, mode: Mode| {
+        let d = greedy_with(config, mode, &input(&f.obs, &grasp, Some(&f.push), 0));
+        (d.action.primitive, d.reason)
+    };
+    assert_eq!(
+        decide(&PolicyConfig::default(), Mode::PushGrasp),
+        (Primitive::Push, Reason::BelowThreshold)
+    );
+    assert_eq!(
+        decide(&free, Mode::PushGrasp),
+        (Primitive::Grasp, Reason::BorderFree)
+    );
+    assert_eq!(
+        decide(&free, Mode::GraspOnly),
+        (Primitive::Grasp, Reason::GraspOnlyMode)
+    );
+    // VPG's rule compares Q values alone: a push Q of 1.0 above a grasp Q of 0.5 pushes.
+    let vpg = PolicyConfig {
+        rule: Rule::HigherQ,
+        ..free.clone()
+    };
+    let low = f.grasp(0.5);
+    let d = greedy_with(
+        &vpg,
+        Mode::PushGrasp,
+        &input(&f.obs, &low, Some(&f.push), 0),
+    );
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Push, Reason::PushQHigher)
+    );
+
+    // A goal with a crowded ring is pushed as without the setting.
+    let crowded = crowded_scene();
+    let grasp = maps(&crowded, 0.0, &[(3, pixel(&crowded, 0.0, 0.0), 1.5)]);
+    let push = maps(&crowded, 0.0, &[(7, pixel(&crowded, 0.0, -0.1), 1.0)]);
+    let d = greedy_with(
+        &free,
+        Mode::PushGrasp,
+        &input(&crowded, &grasp, Some(&push), 0),
+    );
+    assert_eq!(
+        (d.action.primitive, d.reason),
+        (Primitive::Push, Reason::BelowThreshold)
+    );
 }
