@@ -1,6 +1,6 @@
 //! The paper's test metrics. A run is complete when the goal object is picked without 10
 //! consecutive failed attempts at grasping it; a grasp of another object is a failed attempt
-//! (it counts the goal only, unlike the original `evaluate.py`); a goal pushed off the table
+//! (it counts the goal only, unlike the original `evaluate.py`); a goal pushed out of view
 //! fails the run. Per case: completion is the
 //! share of complete runs; grasp success is goal grasps over grasp attempts, averaged over the
 //! complete runs; motion number is the actions of a complete run, averaged.
@@ -43,8 +43,8 @@ pub struct RunRecord {
     pub actions: Vec<ActionRecord>,
     /// Objects on the table after the last action (what a goal-agnostic run has left).
     pub objects_left: usize,
-    /// The goal left the table without being grasped (pushed out of the workspace or off
-    /// the table): the run has failed, however many actions remain.
+    /// The goal left the scene without being grasped (pushed wholly out of the camera's
+    /// view): the run has failed, however many actions remain.
     #[serde(default)]
     pub goal_lost: bool,
     /// Updates the nets took during the run (learning during the test; 0 without).

@@ -152,7 +152,7 @@ pub(crate) fn print_why(report: &EvalReport) {
 fn print_failures(name: &str, why: &FailureReport) {
     let share = |n: usize, of: usize| format!("{n} ({:.1}%)", 100.0 * n as f64 / of.max(1) as f64);
     println!(
-        "why runs failed, {name}: {} runs, {} complete; incomplete: {} out of attempts, {} goal off the table, {} undecided",
+        "why runs failed, {name}: {} runs, {} complete; incomplete: {} out of attempts, {} goal out of view, {} undecided",
         why.runs, why.complete, why.out_of_attempts, why.goal_lost, why.undecided
     );
     let g = &why.grasps;

@@ -60,7 +60,7 @@ pub struct PolicyConfig {
     pub push_reach: Option<f32>,
     /// Under the Q* rules: grasp, whatever the goal's grasp Q, once at most this share of
     /// the goal's border ring is occupied ([`occupancy_ratio`]). A goal with nothing around
-    /// it needs no push, and pushing a free goal on is how most goals leave the table.
+    /// it needs no push, and pushing a free goal on is how most goals leave the scene.
     /// `None`: Q* alone decides, as in the paper.
     pub free_border: Option<f32>,
 }

@@ -40,7 +40,7 @@ pub struct RunConfig {
     /// simulator can give. 0: the paper's one grasp per episode.
     #[serde(default)]
     pub grasp_trials: usize,
-    /// A push that takes the goal off the table ends its episode as a failure: the push is
+    /// A push that takes the goal out of view ends its episode as a failure: the push is
     /// labelled with its reward alone (a push that loses the goal changes nothing around it:
     /// -0.5 under the dense reward). Otherwise (the default) the episode goes on without its
     /// goal, and the push bootstraps on the next state's value, read over every object's

@@ -10,7 +10,7 @@
 use serde::de::Error;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::tabletop::{ObjectId, Tabletop};
+use crate::tabletop::{ObjectId, ObjectView, Tabletop};
 use crate::workspace::{self, PixelGrid};
 
 /// Colour of the bare table in the colour heightmap.
@@ -143,7 +143,6 @@ impl Camera {
     pub fn render_into(&self, tabletop: &Tabletop, maps: &mut Heightmaps) {
         let grid = self.grid;
         let side = grid.side();
-        let size = grid.pixel_size();
         maps.grid = grid;
         maps.colour.clear();
         maps.colour.resize(grid.len(), TABLE_COLOUR);
@@ -152,42 +151,69 @@ impl Camera {
         maps.ids.clear();
         maps.ids.resize(grid.len(), 0);
         // Tops of the table itself count as height 0, so a surface must rise above it.
-        let mut planes = Vec::new();
         for object in tabletop.objects() {
-            for part in object.kind.parts() {
-                let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
-                for v in &part.vertices {
-                    let w = object.pose.transform_point(*v);
-                    lo = [lo[0].min(w.x), lo[1].min(w.y)];
-                    hi = [hi[0].max(w.x), hi[1].max(w.y)];
+            covered_pixels(&object, grid, |row, col, top| {
+                let i = row * side + col;
+                if top > maps.height[i] {
+                    maps.height[i] = top;
+                    maps.ids[i] = object.id;
+                    maps.colour[i] = object.colour;
                 }
-                let col0 = ((lo[0] - workspace::X_MIN) / size - 0.5).ceil().max(0.0) as usize;
-                let row0 = ((lo[1] - workspace::Y_MIN) / size - 0.5).ceil().max(0.0) as usize;
-                let col1 = ((hi[0] - workspace::X_MIN) / size - 0.5).floor();
-                let row1 = ((hi[1] - workspace::Y_MIN) / size - 0.5).floor();
-                if col1 < 0.0 || row1 < 0.0 {
-                    continue;
-                }
-                let col1 = (col1 as usize).min(side - 1);
-                let row1 = (row1 as usize).min(side - 1);
-                planes.clear();
-                planes.extend(part.planes.iter().map(|&(n, d)| {
-                    let n = object.pose.rotation * n;
-                    (n, d + n.dot(object.pose.translation))
-                }));
-                for row in row0..=row1 {
-                    for col in col0..=col1 {
-                        let [x, y] = grid.pixel_centre(row, col);
-                        let Some(top) = ray_top(&planes, x, y) else {
-                            continue;
-                        };
-                        let i = row * side + col;
-                        if top > maps.height[i] {
-                            maps.height[i] = top;
-                            maps.ids[i] = object.id;
-                            maps.colour[i] = object.colour;
-                        }
-                    }
+                true
+            });
+        }
+    }
+}
+
+/// Whether any of the object lies over a pixel centre of `grid`, seen or hidden under
+/// another: an object the camera could see, were it on top.
+pub(crate) fn in_view(object: &ObjectView, grid: PixelGrid) -> bool {
+    let mut seen = false;
+    covered_pixels(object, grid, |_, _, _| {
+        seen = true;
+        false
+    });
+    seen
+}
+
+/// Calls `visit(row, col, top)` for every pixel of `grid` whose centre's vertical line meets
+/// the object, with the height where it leaves the object's part at the top, part by part,
+/// until `visit` returns false.
+fn covered_pixels(
+    object: &ObjectView,
+    grid: PixelGrid,
+    mut visit: impl FnMut(usize, usize, f32) -> bool,
+) {
+    let (side, size) = (grid.side(), grid.pixel_size());
+    let mut planes = Vec::new();
+    for part in object.kind.parts() {
+        let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+        for v in &part.vertices {
+            let w = object.pose.transform_point(*v);
+            lo = [lo[0].min(w.x), lo[1].min(w.y)];
+            hi = [hi[0].max(w.x), hi[1].max(w.y)];
+        }
+        let col0 = ((lo[0] - workspace::X_MIN) / size - 0.5).ceil().max(0.0) as usize;
+        let row0 = ((lo[1] - workspace::Y_MIN) / size - 0.5).ceil().max(0.0) as usize;
+        let col1 = ((hi[0] - workspace::X_MIN) / size - 0.5).floor();
+        let row1 = ((hi[1] - workspace::Y_MIN) / size - 0.5).floor();
+        if col1 < 0.0 || row1 < 0.0 {
+            continue;
+        }
+        let col1 = (col1 as usize).min(side - 1);
+        let row1 = (row1 as usize).min(side - 1);
+        planes.clear();
+        planes.extend(part.planes.iter().map(|&(n, d)| {
+            let n = object.pose.rotation * n;
+            (n, d + n.dot(object.pose.translation))
+        }));
+        for row in row0..=row1 {
+            for col in col0..=col1 {
+                let [x, y] = grid.pixel_centre(row, col);
+                if let Some(top) = ray_top(&planes, x, y)
+                    && !visit(row, col, top)
+                {
+                    return;
                 }
             }
         }

@@ -89,7 +89,8 @@ pub struct ActionOutcome {
     /// motion.
     pub start: [f32; 3],
     pub end: [f32; 3],
-    /// Objects that left the table during the action or the settle after it.
+    /// Objects that left the scene (the camera sees none of them) during the action or the
+    /// settle after it.
     pub removed: Vec<ObjectId>,
     /// Physics steps the action took, settle included.
     pub physics_steps: u32,
@@ -170,7 +171,7 @@ impl Tabletop {
         );
         self.move_tool(end, rotation, PUSH_SPEED);
         self.move_tool(end + Vector::Z * PUSH_APPROACH_HEIGHT, rotation, LIFT_SPEED);
-        let removed = self.remove_fallen();
+        let removed = self.remove_out_of_view();
         ActionOutcome {
             start: start.to_array(),
             end: end.to_array(),
@@ -225,7 +226,7 @@ impl Tabletop {
             self.remove_object(id);
         }
         self.gripper.command(&mut self.world, Jaws::Open);
-        let removed = self.remove_fallen();
+        let removed = self.remove_out_of_view();
         ActionOutcome {
             grasped,
             final_opening,

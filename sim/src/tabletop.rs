@@ -1,16 +1,22 @@
 //! The rapier world: a table, the objects on it, and the gripper.
+//!
+//! The table is the original's floor, a 5 m square of which the workspace (what the camera
+//! sees) is a part: an object pushed past the workspace's edge rests beyond it, partly seen,
+//! and leaves the scene only once the camera sees none of it, as the original ends a run
+//! when the goal's outline has left the heightmap.
 
 use std::time::{Duration, Instant};
 
 use rapier3d::prelude::*;
 
+use crate::camera;
 use crate::catalogue::ShapeKind;
 use crate::collision::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
 use crate::config::SimConfig;
 use crate::error::SimError;
 use crate::gripper::Gripper;
 use crate::material::{self, OBJECT_FRICTION, OBJECT_MASS, TABLE_FRICTION};
-use crate::workspace::{self, PixelGrid};
+use crate::workspace::PixelGrid;
 
 /// An object's id: 1..=255, 0 is the table in the id heightmap.
 pub type ObjectId = u8;
@@ -26,6 +32,9 @@ const REST_ANGULAR: f32 = 0.05;
 const REST_STEPS: u32 = 12;
 /// Below this height an object has fallen off the table.
 const FALLEN_Z: f32 = -0.02;
+/// Half the side of the floor, centred under the world's origin: the original scene's
+/// `ResizableFloor_5_25`, 5 m square.
+const FLOOR_HALF_SIDE: f32 = 2.5;
 
 #[derive(Clone)]
 struct Object {
@@ -45,7 +54,7 @@ pub struct ObjectView {
 }
 
 /// How a settle went: the steps it took, whether everything came to rest within the bound,
-/// and which objects left the table (and were removed).
+/// and which objects left the scene (and were removed).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SettleReport {
     pub steps: u32,
@@ -84,19 +93,17 @@ impl Tabletop {
         // the fingers tilt by a degree and a half and bounce at the open stop.
         world.integration_parameters.num_internal_pgs_iterations = 2;
 
-        let half = workspace::SIDE / 2.0;
         world.insert(
-            RigidBodyBuilder::fixed().translation(Vector::new(
-                workspace::CENTRE[0],
-                workspace::CENTRE[1],
-                -0.05,
+            RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -0.05)),
+            material::bullet(
+                ColliderBuilder::cuboid(FLOOR_HALF_SIDE, FLOOR_HALF_SIDE, 0.05),
+                TABLE_FRICTION,
+            )
+            .collision_groups(InteractionGroups::new(
+                TABLE_GROUP,
+                OBJECT_GROUP | GRIPPER_GROUP,
+                InteractionTestMode::And,
             )),
-            material::bullet(ColliderBuilder::cuboid(half, half, 0.05), TABLE_FRICTION)
-                .collision_groups(InteractionGroups::new(
-                    TABLE_GROUP,
-                    OBJECT_GROUP | GRIPPER_GROUP,
-                    InteractionTestMode::And,
-                )),
         );
         let gripper = Gripper::new(&mut world);
         Ok(Self {
@@ -226,7 +233,7 @@ impl Tabletop {
     }
 
     /// Steps until every object has been at rest for a few steps in a row, at most
-    /// `settle_max_s`, then removes the objects that left the table.
+    /// `settle_max_s`, then removes the objects that left the scene.
     pub fn settle(&mut self) -> SettleReport {
         let max_steps = (self.config.settle_max_s * self.config.physics_hz).ceil() as u32;
         let mut quiet = 0;
@@ -239,7 +246,7 @@ impl Tabletop {
         SettleReport {
             steps,
             at_rest: quiet >= REST_STEPS,
-            removed: self.remove_fallen(),
+            removed: self.remove_out_of_view(),
         }
     }
 
@@ -251,14 +258,12 @@ impl Tabletop {
         })
     }
 
-    /// Removes objects whose centre is no longer over the table, and returns their ids.
-    pub(crate) fn remove_fallen(&mut self) -> Vec<ObjectId> {
+    /// Removes the objects that left the scene, and returns their ids: those the camera sees
+    /// none of (not even hidden under another), and any that fell below the table.
+    pub(crate) fn remove_out_of_view(&mut self) -> Vec<ObjectId> {
         let fallen: Vec<ObjectId> = self
             .objects()
-            .filter(|o| {
-                let t = o.pose.translation;
-                t.z < FALLEN_Z || !workspace::contains(t.x, t.y)
-            })
+            .filter(|o| o.pose.translation.z < FALLEN_Z || !camera::in_view(o, self.grid))
             .map(|o| o.id)
             .collect();
         for &id in &fallen {

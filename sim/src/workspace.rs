@@ -101,7 +101,7 @@ impl PixelGrid {
     }
 }
 
-/// Whether a world point lies over the workspace (and so over the table).
+/// Whether a world point lies over the workspace, the part of the table the camera sees.
 pub fn contains(x: f32, y: f32) -> bool {
     (X_MIN..=X_MAX).contains(&x) && (Y_MIN..=Y_MAX).contains(&y)
 }

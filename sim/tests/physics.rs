@@ -8,7 +8,7 @@ use std::path::Path;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
-use sim::workspace::CENTRE;
+use sim::workspace::{CENTRE, X_MAX};
 use sim::{
     Action, Arrangement, Camera, Heightmaps, MaskShape, OriginalOptions, Primitive, Rows,
     ShapeKind, SimConfig, Tabletop,
@@ -202,6 +202,37 @@ fn a_push_that_misses_moves_nothing() {
     tabletop.act(&action, &maps).unwrap();
     let moved = tabletop.object(1).unwrap().pose.translation - before;
     assert!(moved.length() < 1e-3, "moved {moved:?}");
+}
+
+#[test]
+fn an_object_past_the_workspace_edge_rests_on_the_floor_until_the_camera_sees_none_of_it() {
+    // The table is the original's 5 m floor: a cube (5 cm) whose centre lies 1 cm past the
+    // edge is still 1.5 cm in view and stays; one 4 cm past is out of view and leaves.
+    for (past, stays) in [(0.01, true), (0.04, false)] {
+        let mut tabletop = Tabletop::new(&SimConfig::default()).unwrap();
+        let pose = Pose::from_parts(
+            Vector::new(X_MAX + past, CENTRE[1], 0.025),
+            Rotation::IDENTITY,
+        );
+        tabletop
+            .add_object(1, ShapeKind::Cube, [200, 50, 50], pose)
+            .unwrap();
+        let report = tabletop.settle();
+        let seen = observe(&tabletop).visible_ids();
+        if stays {
+            let object = tabletop.object(1).expect("a cube partly in view stays");
+            let z = object.pose.translation.z;
+            assert!((z - 0.025).abs() < 2e-3, "it rests on the floor at z {z}");
+            assert_eq!(seen, vec![1], "the camera sees the part in view");
+        } else {
+            assert_eq!(
+                report.removed,
+                vec![1],
+                "a cube out of view leaves: {report:?}"
+            );
+            assert!(seen.is_empty());
+        }
+    }
 }
 
 #[test]

@@ -32,7 +32,8 @@ fn at_the_edge<'a>(config: &'a RunConfig, log: &'a RunLog) -> Environment<'a> {
     env
 }
 
-/// Pushes along +x from 7 cm before the cube, towards the edge and beyond it.
+/// Pushes along +x from 7 cm before the cube to the edge: the closed jaws carry it wholly
+/// past the edge, out of view.
 fn push_off(env: &mut Environment<'_>) -> Vec<Completed> {
     let grid = env.tabletop.grid();
     let (row, col) = grid.pixel_of(X_MAX - 0.10, CENTRE[1]).unwrap();
@@ -58,13 +59,13 @@ fn push_off(env: &mut Environment<'_>) -> Vec<Completed> {
     let completed = env.act(choice, 0).unwrap();
     assert!(
         env.tabletop.object(1).is_none(),
-        "the push left the goal on the table"
+        "the push left the goal in view"
     );
     completed
 }
 
 #[test]
-fn a_push_that_takes_the_goal_off_the_table_ends_its_episode_when_asked() {
+fn a_push_that_takes_the_goal_out_of_view_ends_its_episode_when_asked() {
     let dir = tempfile::tempdir().unwrap();
     let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
     let mut config = RunConfig::load(std::path::Path::new(concat!(
