@@ -34,6 +34,13 @@ pub struct RunConfig {
     /// not. 0 (the paper): every goal at random.
     #[serde(default)]
     pub crowded_goals: f64,
+    /// Goals only among the objects seen whose centre lies over the workspace. An object
+    /// pushed past the workspace's edge rests on the floor there, partly seen, where a grasp
+    /// can hardly reach it and no push brings it back; the original's training goals are
+    /// objects of a fresh central drop (its scene restarts once the goal has left). false:
+    /// any object seen.
+    #[serde(default)]
+    pub goals_over_workspace: bool,
     /// Before each grasp it executes, an actor tries this many other grasps of the goal
     /// (pixels and angles drawn as exploration draws them) on exact copies of the scene and
     /// ships each as an experience of its own: denser grasp labels per scene, which only a

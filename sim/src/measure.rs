@@ -70,12 +70,12 @@ pub fn occupancy_ratio(maps: &Heightmaps, goal: ObjectId) -> f32 {
     }
 }
 
-/// Of the objects seen in `maps`, the one whose ring is most occupied ([`occupancy_ratio`]);
-/// the highest id among equals, `None` when none is seen.
-pub fn most_crowded(maps: &Heightmaps) -> Option<ObjectId> {
-    maps.visible_ids()
-        .into_iter()
-        .map(|id| (occupancy_ratio(maps, id), id))
+/// Of the objects `among` (seen in `maps`), the one whose ring is most occupied
+/// ([`occupancy_ratio`]); the highest id among equals, `None` when `among` is empty.
+pub fn most_crowded(maps: &Heightmaps, among: &[ObjectId]) -> Option<ObjectId> {
+    among
+        .iter()
+        .map(|&id| (occupancy_ratio(maps, id), id))
         .max_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
         .map(|(_, id)| id)
 }

@@ -210,10 +210,10 @@ fn the_most_crowded_object_is_the_one_with_neighbours_all_round() {
     // The centre cube has four neighbours; each neighbour has one (the centre) within its
     // ring.
     let crowded = render(&surrounded(4));
-    assert_eq!(most_crowded(&crowded), Some(1));
+    assert_eq!(most_crowded(&crowded, &crowded.visible_ids()), Some(1));
     // Whatever the scene, no object seen has a more occupied ring than the one chosen.
     let pair = render(&surrounded(1));
-    let best = most_crowded(&pair).unwrap();
+    let best = most_crowded(&pair, &pair.visible_ids()).unwrap();
     let others = pair.visible_ids();
     assert!(
         others
@@ -222,7 +222,7 @@ fn the_most_crowded_object_is_the_one_with_neighbours_all_round() {
     );
     let mut empty = surrounded(0);
     empty.remove_object(1);
-    assert_eq!(most_crowded(&render(&empty)), None);
+    assert_eq!(most_crowded(&render(&empty), &[]), None);
 }
 
 #[test]

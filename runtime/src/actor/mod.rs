@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::measure::{detect_change, most_crowded};
-use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop};
+use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop, workspace};
 use wire::{Inbox, Message, Origin, Outbox, Role, Status, Topic, Transport, Weights};
 
 use crate::stopwatch::{Stopwatch, status_mb};
@@ -303,39 +303,54 @@ impl<'a> Environment<'a> {
         Ok(Tabletop::random_with_rows(&config.sim, config.objects, rows, seed)?.0)
     }
 
-    /// Between episodes, starts one: on a new scene when this one is cleared or stuck, for
-    /// a visible object at random, or the most crowded one in the config's share of
-    /// episodes (none while nothing is visible: it tries again next time). A new scene ends
-    /// the chain of the step waiting: returned, to ship as it is.
+    /// Between episodes, starts one: on a new scene when this one has no goal left to take
+    /// ([`Self::goal_candidates`]) or is stuck, for a candidate at random, or the most
+    /// crowded one in the config's share of episodes (none while no candidate is seen: it
+    /// tries again next time). A new scene ends the chain of the step waiting: returned, to
+    /// ship as it is.
     fn episode_start(&mut self) -> Result<Option<Unlabelled>> {
         if self.episode.is_some() {
             return Ok(None);
         }
         let mut chain_end = None;
         let mut obs = self.camera.render(&self.tabletop);
-        if obs.visible_ids().is_empty()
-            || self.failures_in_a_row >= self.config.max_failures_per_scene
-        {
+        let mut candidates = self.goal_candidates(&obs);
+        if candidates.is_empty() || self.failures_in_a_row >= self.config.max_failures_per_scene {
             chain_end = self.unlabelled.take();
             self.scene_seed = self.scene_seed.wrapping_add(1);
             self.tabletop = Self::new_scene(self.config, self.scene_seed, &mut self.rng)?;
             obs = self.camera.render(&self.tabletop);
+            candidates = self.goal_candidates(&obs);
             self.failures_in_a_row = 0;
         }
         // No draw at a share of 0: the episodes' goals stay those of the seed without it.
         let share = self.config.crowded_goals;
         let goal = if share > 0.0 && self.rng.random::<f64>() < share {
-            most_crowded(&obs)
+            most_crowded(&obs, &candidates)
         } else {
-            let visible = obs.visible_ids();
-            visible
-                .get(self.rng.random_range(0..visible.len().max(1)))
+            candidates
+                .get(self.rng.random_range(0..candidates.len().max(1)))
                 .copied()
         };
         if let Some(goal) = goal {
             self.episode = Some(Episode { obs, goal, step: 0 });
         }
         Ok(chain_end)
+    }
+
+    /// The objects an episode may take as its goal: those seen, under `goals_over_workspace`
+    /// only those whose centre lies over the workspace.
+    fn goal_candidates(&self, obs: &Heightmaps) -> Vec<ObjectId> {
+        let mut seen = obs.visible_ids();
+        if self.config.goals_over_workspace {
+            seen.retain(|&id| {
+                self.tabletop.object(id).is_some_and(|o| {
+                    let centre = o.pose.translation;
+                    workspace::contains(centre.x, centre.y)
+                })
+            });
+        }
+        seen
     }
 
     /// What the agent decides on in this environment, while an episode is under way.

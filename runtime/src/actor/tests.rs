@@ -98,3 +98,50 @@ fn a_push_that_takes_the_goal_out_of_view_ends_its_episode_when_asked() {
     assert!(env.unlabelled.as_ref().is_some_and(|p| p.ends.is_none()));
     assert_eq!(env.report.episodes, 0);
 }
+
+#[test]
+fn goals_over_the_workspace_leave_out_an_object_past_its_edge() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
+    let mut config = RunConfig::load(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/stage2.toml"
+    )))
+    .unwrap();
+    config.logging.image_every = 0;
+    // Every goal the most crowded: of two lone cubes, the higher id, the one past the edge.
+    config.crowded_goals = 1.0;
+    let id = ActorId {
+        index: 0,
+        incarnation: 0,
+    };
+    let cube = |x: f32| Pose::from_parts(Vector::new(x, CENTRE[1], 0.025), Rotation::IDENTITY);
+    for (over_workspace, goal) in [(false, 2), (true, 1)] {
+        config.goals_over_workspace = over_workspace;
+        let mut env = Environment::new(&config, id, &log).unwrap();
+        env.tabletop = Tabletop::new(&config.sim).unwrap();
+        for (object, x) in [(1, CENTRE[0]), (2, X_MAX + 0.01)] {
+            env.tabletop
+                .add_object(object, ShapeKind::Cube, [200, 50, 50], cube(x))
+                .unwrap();
+        }
+        env.tabletop.settle();
+        assert_eq!(env.camera.render(&env.tabletop).visible_ids(), vec![1, 2]);
+        env.episode_start().unwrap();
+        assert_eq!(env.episode.as_ref().map(|e| e.goal), Some(goal));
+    }
+
+    // With only the cube past the edge left, there is no goal to take: a new scene.
+    let mut env = Environment::new(&config, id, &log).unwrap();
+    env.tabletop = Tabletop::new(&config.sim).unwrap();
+    env.tabletop
+        .add_object(2, ShapeKind::Cube, [200, 50, 50], cube(X_MAX + 0.01))
+        .unwrap();
+    env.tabletop.settle();
+    let seed = env.scene_seed;
+    env.episode_start().unwrap();
+    assert_eq!(env.scene_seed, seed + 1);
+    let goal = env.episode.as_ref().expect("a goal in the new scene").goal;
+    let centre = env.tabletop.object(goal).unwrap().pose.translation;
+    assert!(workspace::contains(centre.x, centre.y));
+}
