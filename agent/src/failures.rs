@@ -45,7 +45,7 @@ pub struct GraspCounts {
     pub goal: usize,
     pub nothing: usize,
     pub other_object: usize,
-    /// Failed grasps after which the goal was off the table.
+    /// Failed grasps after which the goal was out of view.
     pub goal_knocked_off: usize,
     /// Failed grasps right after a failed grasp at a goal grasp Q within 0.05 of it.
     pub repeats: usize,

@@ -157,7 +157,7 @@ fn print_failures(name: &str, why: &FailureReport) {
     );
     let g = &why.grasps;
     println!(
-        "  grasps {}: the goal {}, nothing {}, another object {}; the goal knocked off {}, repeats of the failed grasp before {}",
+        "  grasps {}: the goal {}, nothing {}, another object {}; the goal knocked out of view {}, repeats of the failed grasp before {}",
         g.attempts,
         share(g.goal, g.attempts),
         share(g.nothing, g.attempts),
