@@ -1,10 +1,11 @@
 //! Pushes that would carry the goal's centre out of the workspace. A goal past the edge is
 //! mostly out of the camera's view, and once none of it is seen it is gone, and with it the
-//! run: on the challenging cases this is how most incomplete runs end. A push is judged from the heightmap alone, as a robot could
-//! judge it ([`crate::push_sweep`]): the nearest goal pixel in the band the push sweeps,
-//! ahead of the start and within the push's reach, is where the tool meets the goal, and the
-//! goal is taken to ride on the tool from there to the push's end. Objects the tool pushes
-//! into the goal are not followed: only direct contact is predicted.
+//! run: on the challenging cases this is how most incomplete runs end. A push is judged
+//! from the heightmap alone, as a robot could judge it ([`crate::push_sweep`]): the nearest
+//! goal pixel in the band the push sweeps, ahead of the start and within the push's reach,
+//! is where the tool meets the goal, and the goal is taken to ride on the tool from there
+//! to the push's end. Objects the tool pushes into the goal are not followed: only direct
+//! contact is predicted.
 
 use sim::{Heightmaps, ObjectId};
 

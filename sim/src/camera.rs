@@ -151,8 +151,9 @@ impl Camera {
         maps.ids.clear();
         maps.ids.resize(grid.len(), 0);
         // Tops of the table itself count as height 0, so a surface must rise above it.
+        let mut planes = Vec::new();
         for object in tabletop.objects() {
-            covered_pixels(&object, grid, |row, col, top| {
+            covered_pixels(&object, grid, &mut planes, |row, col, top| {
                 let i = row * side + col;
                 if top > maps.height[i] {
                     maps.height[i] = top;
@@ -169,7 +170,7 @@ impl Camera {
 /// another: an object the camera could see, were it on top.
 pub(crate) fn in_view(object: &ObjectView, grid: PixelGrid) -> bool {
     let mut seen = false;
-    covered_pixels(object, grid, |_, _, _| {
+    covered_pixels(object, grid, &mut Vec::new(), |_, _, _| {
         seen = true;
         false
     });
@@ -178,14 +179,14 @@ pub(crate) fn in_view(object: &ObjectView, grid: PixelGrid) -> bool {
 
 /// Calls `visit(row, col, top)` for every pixel of `grid` whose centre's vertical line meets
 /// the object, with the height where it leaves the object's part at the top, part by part,
-/// until `visit` returns false.
+/// until `visit` returns false. `planes` is scratch space, kept from call to call.
 fn covered_pixels(
     object: &ObjectView,
     grid: PixelGrid,
+    planes: &mut Vec<(rapier3d::prelude::Vector, f32)>,
     mut visit: impl FnMut(usize, usize, f32) -> bool,
 ) {
     let (side, size) = (grid.side(), grid.pixel_size());
-    let mut planes = Vec::new();
     for part in object.kind.parts() {
         let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
         for v in &part.vertices {
@@ -210,7 +211,7 @@ fn covered_pixels(
         for row in row0..=row1 {
             for col in col0..=col1 {
                 let [x, y] = grid.pixel_centre(row, col);
-                if let Some(top) = ray_top(&planes, x, y)
+                if let Some(top) = ray_top(planes, x, y)
                     && !visit(row, col, top)
                 {
                     return;

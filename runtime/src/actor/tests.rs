@@ -6,23 +6,44 @@ use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::{CENTRE, X_MAX};
 use sim::{Action, ShapeKind};
 
-/// An environment whose episode's goal, a lone cube, lies 3 cm inside the workspace's +x
-/// edge.
-fn at_the_edge<'a>(config: &'a RunConfig, log: &'a RunLog) -> Environment<'a> {
+/// Stage 2's config, with no pictures logged.
+fn stage2_config() -> RunConfig {
+    let mut config = RunConfig::load(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/stage2.toml"
+    )))
+    .unwrap();
+    config.logging.image_every = 0;
+    config
+}
+
+/// An environment with no episode under way on a scene of lone cubes, `(id, x)` each, at
+/// the workspace's middle row, settled.
+fn lone_cubes<'a>(
+    config: &'a RunConfig,
+    log: &'a RunLog,
+    cubes: &[(ObjectId, f32)],
+) -> Environment<'a> {
     let id = ActorId {
         index: 0,
         incarnation: 0,
     };
     let mut env = Environment::new(config, id, log).unwrap();
     env.tabletop = Tabletop::new(&config.sim).unwrap();
-    let pose = Pose::from_parts(
-        Vector::new(X_MAX - 0.03, CENTRE[1], 0.025),
-        Rotation::IDENTITY,
-    );
-    env.tabletop
-        .add_object(1, ShapeKind::Cube, [200, 50, 50], pose)
-        .unwrap();
+    for &(object, x) in cubes {
+        let pose = Pose::from_parts(Vector::new(x, CENTRE[1], 0.025), Rotation::IDENTITY);
+        env.tabletop
+            .add_object(object, ShapeKind::Cube, [200, 50, 50], pose)
+            .unwrap();
+    }
     env.tabletop.settle();
+    env
+}
+
+/// An environment whose episode's goal, a lone cube, lies 3 cm inside the workspace's +x
+/// edge.
+fn at_the_edge<'a>(config: &'a RunConfig, log: &'a RunLog) -> Environment<'a> {
+    let mut env = lone_cubes(config, log, &[(1, X_MAX - 0.03)]);
     let obs = env.camera.render(&env.tabletop);
     env.episode = Some(Episode {
         obs,
@@ -68,12 +89,7 @@ fn push_off(env: &mut Environment<'_>) -> Vec<Completed> {
 fn a_push_that_takes_the_goal_out_of_view_ends_its_episode_when_asked() {
     let dir = tempfile::tempdir().unwrap();
     let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
-    let mut config = RunConfig::load(std::path::Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../configs/stage2.toml"
-    )))
-    .unwrap();
-    config.logging.image_every = 0;
+    let mut config = stage2_config();
 
     config.goal_lost_ends_episode = true;
     let mut env = at_the_edge(&config, &log);
@@ -103,41 +119,19 @@ fn a_push_that_takes_the_goal_out_of_view_ends_its_episode_when_asked() {
 fn goals_over_the_workspace_leave_out_an_object_past_its_edge() {
     let dir = tempfile::tempdir().unwrap();
     let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
-    let mut config = RunConfig::load(std::path::Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../configs/stage2.toml"
-    )))
-    .unwrap();
-    config.logging.image_every = 0;
+    let mut config = stage2_config();
     // Every goal the most crowded: of two lone cubes, the higher id, the one past the edge.
     config.crowded_goals = 1.0;
-    let id = ActorId {
-        index: 0,
-        incarnation: 0,
-    };
-    let cube = |x: f32| Pose::from_parts(Vector::new(x, CENTRE[1], 0.025), Rotation::IDENTITY);
     for (over_workspace, goal) in [(false, 2), (true, 1)] {
         config.goals_over_workspace = over_workspace;
-        let mut env = Environment::new(&config, id, &log).unwrap();
-        env.tabletop = Tabletop::new(&config.sim).unwrap();
-        for (object, x) in [(1, CENTRE[0]), (2, X_MAX + 0.01)] {
-            env.tabletop
-                .add_object(object, ShapeKind::Cube, [200, 50, 50], cube(x))
-                .unwrap();
-        }
-        env.tabletop.settle();
+        let mut env = lone_cubes(&config, &log, &[(1, CENTRE[0]), (2, X_MAX + 0.01)]);
         assert_eq!(env.camera.render(&env.tabletop).visible_ids(), vec![1, 2]);
         env.episode_start().unwrap();
         assert_eq!(env.episode.as_ref().map(|e| e.goal), Some(goal));
     }
 
     // With only the cube past the edge left, there is no goal to take: a new scene.
-    let mut env = Environment::new(&config, id, &log).unwrap();
-    env.tabletop = Tabletop::new(&config.sim).unwrap();
-    env.tabletop
-        .add_object(2, ShapeKind::Cube, [200, 50, 50], cube(X_MAX + 0.01))
-        .unwrap();
-    env.tabletop.settle();
+    let mut env = lone_cubes(&config, &log, &[(2, X_MAX + 0.01)]);
     let seed = env.scene_seed;
     env.episode_start().unwrap();
     assert_eq!(env.scene_seed, seed + 1);
