@@ -24,6 +24,12 @@ use common::{pushgrasp_fails, pushgrasp_ok};
 /// The Q maps of both nets must agree this closely (of their scale).
 const AGREEMENT: f32 = 1e-3;
 
+/// ... and after one training step on each backend, this closely: a weight whose gradient
+/// is below the two backends' rounding takes Adam's first step (about the learning rate,
+/// whatever the gradient's size) either way, and the rare few that went the other way move
+/// the maps by a few thousandths of their scale between them.
+const AGREEMENT_AFTER_A_STEP: f32 = 5e-3;
+
 /// One test at a time on the device: lavapipe's threads take every core, and a run's
 /// learner starved of them goes silent past its heartbeat.
 static DEVICE: Mutex<()> = Mutex::new(());
@@ -111,7 +117,13 @@ fn on(device: &Device, net: &QNetConfig, nets: &QNets) -> QNets {
 /// it together with its mirror image in one batch (each input sent once and rotated on the
 /// device) as an actor runs them (on a device, laid out in full, their convolution weights
 /// channels-last).
-fn maps_agree(ours: &QNets, reference: &QNets, net: &QNetConfig, input: &NetInput, what: &str) {
+fn maps_agree(
+    ours: &QNets,
+    reference: &QNets,
+    net: &QNetConfig,
+    input: &NetInput,
+    (what, agreement): (&str, f32),
+) {
     let geometry = qnet::Geometry::new(input.side, net);
     let mirror = input.mirrored();
     let primitives = [Primitive::Push, Primitive::Grasp];
@@ -134,7 +146,7 @@ fn maps_agree(ours: &QNets, reference: &QNets, net: &QNetConfig, input: &NetInpu
                 "{what}, {primitive:?}, context {:?}, {of}: max abs difference {:e}, relative {:e}",
                 net.context_dilations, d.max_abs, d.max_rel
             );
-            assert!(d.max_rel <= AGREEMENT, "{what}, {primitive:?}, {of}: {d:?}");
+            assert!(d.max_rel <= agreement, "{what}, {primitive:?}, {of}: {d:?}");
         }
     }
 }
@@ -151,7 +163,7 @@ fn both_nets_give_the_cpus_q_maps_over_16_rotations() {
             &cpu_nets,
             &net,
             &input,
-            "wgpu vs cpu",
+            ("wgpu vs cpu", AGREEMENT),
         );
     }
 }
@@ -281,7 +293,7 @@ fn one_training_step_gives_the_cpus_loss_and_weights() {
             &on_cpu.published_nets(),
             &net,
             &input,
-            "after one step, wgpu vs cpu",
+            ("after one step, wgpu vs cpu", AGREEMENT_AFTER_A_STEP),
         );
     }
 }
@@ -383,7 +395,7 @@ fn a_checkpoint_saved_on_one_backend_loads_on_the_other() {
             &source.published_nets(),
             &net,
             &input,
-            name,
+            (name, AGREEMENT),
         );
     }
 }
