@@ -41,6 +41,14 @@ pub struct RunConfig {
     /// any object seen.
     #[serde(default)]
     pub goals_over_workspace: bool,
+    /// A scene keeps its first episode's goal: the episodes after a failed grasp take the
+    /// same goal again, and the scene is dropped anew once the goal has left the view
+    /// (grasped, or pushed out), as the original's training does (`main.py`: a fixed goal
+    /// index; the scene restarts once the goal has left). Every goal is then an object of
+    /// a fresh ten-object drop, as the test cases' are. false: each episode draws its goal
+    /// among the objects seen, and the scene thins out over its episodes until empty.
+    #[serde(default)]
+    pub goal_per_scene: bool,
     /// Before each grasp it executes, an actor tries this many other grasps of the goal
     /// (pixels and angles drawn as exploration draws them) on exact copies of the scene and
     /// ships each as an experience of its own: denser grasp labels per scene, which only a

@@ -258,6 +258,8 @@ struct Environment<'a> {
     unlabelled: Option<Unlabelled>,
     /// Grasps in a row that held nothing: a scene stuck for too long is replaced.
     failures_in_a_row: usize,
+    /// The last episode's goal, kept for the scene's next episode under `goal_per_scene`.
+    scene_goal: Option<ObjectId>,
     stream: Stream,
     report: ActorReport,
 }
@@ -285,6 +287,7 @@ impl<'a> Environment<'a> {
             episode: None,
             unlabelled: None,
             failures_in_a_row: 0,
+            scene_goal: None,
             stream: Stream::new(Origin {
                 actor: id.index,
                 incarnation: id.incarnation,
@@ -306,8 +309,9 @@ impl<'a> Environment<'a> {
     /// Between episodes, starts one: on a new scene when this one has no goal left to take
     /// ([`Self::goal_candidates`]) or is stuck, for a candidate at random, or the most
     /// crowded one in the config's share of episodes (none while no candidate is seen: it
-    /// tries again next time). A new scene ends the chain of the step waiting: returned, to
-    /// ship as it is.
+    /// tries again next time). Under `goal_per_scene` the scene's goal is taken again while
+    /// it is seen, and its leaving the view ends the scene. A new scene ends the chain of
+    /// the step waiting: returned, to ship as it is.
     fn episode_start(&mut self) -> Result<Option<Unlabelled>> {
         if self.episode.is_some() {
             return Ok(None);
@@ -315,7 +319,14 @@ impl<'a> Environment<'a> {
         let mut chain_end = None;
         let mut obs = self.camera.render(&self.tabletop);
         let mut candidates = self.goal_candidates(&obs);
-        if candidates.is_empty() || self.failures_in_a_row >= self.config.max_failures_per_scene {
+        let kept = self
+            .scene_goal
+            .filter(|goal| self.config.goal_per_scene && candidates.contains(goal));
+        let goal_left = self.config.goal_per_scene && self.scene_goal.is_some() && kept.is_none();
+        let renew = candidates.is_empty()
+            || goal_left
+            || self.failures_in_a_row >= self.config.max_failures_per_scene;
+        if renew {
             chain_end = self.unlabelled.take();
             self.scene_seed = self.scene_seed.wrapping_add(1);
             self.tabletop = Self::new_scene(self.config, self.scene_seed, &mut self.rng)?;
@@ -323,19 +334,29 @@ impl<'a> Environment<'a> {
             candidates = self.goal_candidates(&obs);
             self.failures_in_a_row = 0;
         }
-        // No draw at a share of 0: the episodes' goals stay those of the seed without it.
-        let share = self.config.crowded_goals;
-        let goal = if share > 0.0 && self.rng.random::<f64>() < share {
-            most_crowded(&obs, &candidates)
-        } else {
-            candidates
-                .get(self.rng.random_range(0..candidates.len().max(1)))
-                .copied()
+        let goal = match kept {
+            Some(goal) if !renew => Some(goal),
+            _ => self.draw_goal(&obs, &candidates),
         };
+        self.scene_goal = goal;
         if let Some(goal) = goal {
             self.episode = Some(Episode { obs, goal, step: 0 });
         }
         Ok(chain_end)
+    }
+
+    /// A goal among `candidates`: the most crowded in the config's share of draws, else one
+    /// at random.
+    fn draw_goal(&mut self, obs: &Heightmaps, candidates: &[ObjectId]) -> Option<ObjectId> {
+        // No draw at a share of 0: the episodes' goals stay those of the seed without it.
+        let share = self.config.crowded_goals;
+        if share > 0.0 && self.rng.random::<f64>() < share {
+            most_crowded(obs, candidates)
+        } else {
+            candidates
+                .get(self.rng.random_range(0..candidates.len().max(1)))
+                .copied()
+        }
     }
 
     /// The objects an episode may take as its goal: those seen, under `goals_over_workspace`

@@ -139,3 +139,45 @@ fn goals_over_the_workspace_leave_out_an_object_past_its_edge() {
     let centre = env.tabletop.object(goal).unwrap().pose.translation;
     assert!(workspace::contains(centre.x, centre.y));
 }
+
+#[test]
+fn a_goal_per_scene_is_taken_again_until_it_leaves_and_then_the_scene_is_new() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
+    let mut config = stage2_config();
+    let cubes = [(1, CENTRE[0] - 0.1), (2, CENTRE[0]), (3, CENTRE[0] + 0.1)];
+    // Episodes that end without taking anything, as failed grasps do: their goals.
+    let goals = |env: &mut Environment<'_>| -> Vec<ObjectId> {
+        (0..12)
+            .map(|_| {
+                env.episode_start().unwrap();
+                env.episode.take().expect("a goal among three cubes").goal
+            })
+            .collect()
+    };
+
+    config.goal_per_scene = false;
+    let mut env = lone_cubes(&config, &log, &cubes);
+    let drawn = goals(&mut env);
+    assert!(
+        drawn.iter().any(|&g| g != drawn[0]),
+        "one goal drawn: {drawn:?}"
+    );
+
+    config.goal_per_scene = true;
+    let mut env = lone_cubes(&config, &log, &cubes);
+    let seed = env.scene_seed;
+    let kept = goals(&mut env);
+    assert!(kept.iter().all(|&g| g == kept[0]), "goals {kept:?}");
+    assert_eq!(
+        env.scene_seed, seed,
+        "a scene dropped while its goal was seen"
+    );
+
+    // The goal leaves (grasped, or pushed out of view), two cubes still seen: a new scene.
+    assert!(env.tabletop.remove_object(kept[0]));
+    env.episode_start().unwrap();
+    assert_eq!(env.scene_seed, seed + 1);
+    assert_eq!(env.tabletop.object_count(), config.objects);
+    assert_eq!(env.scene_goal, env.episode.as_ref().map(|e| e.goal));
+}
