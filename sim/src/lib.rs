@@ -12,6 +12,7 @@ pub mod catalogue;
 mod collision;
 pub mod config;
 pub mod error;
+mod footprint;
 mod gripper;
 pub mod mask_shape;
 mod material;

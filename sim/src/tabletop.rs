@@ -9,11 +9,11 @@ use std::time::{Duration, Instant};
 
 use rapier3d::prelude::*;
 
-use crate::camera;
 use crate::catalogue::ShapeKind;
 use crate::collision::{GRIPPER_GROUP, OBJECT_GROUP, TABLE_GROUP};
 use crate::config::SimConfig;
 use crate::error::SimError;
+use crate::footprint;
 use crate::gripper::Gripper;
 use crate::material::{self, OBJECT_FRICTION, OBJECT_MASS, TABLE_FRICTION};
 use crate::workspace::PixelGrid;
@@ -263,7 +263,9 @@ impl Tabletop {
     pub(crate) fn remove_out_of_view(&mut self) -> Vec<ObjectId> {
         let fallen: Vec<ObjectId> = self
             .objects()
-            .filter(|o| o.pose.translation.z < FALLEN_Z || !camera::in_view(o, self.grid))
+            .filter(|o| {
+                o.pose.translation.z < FALLEN_Z || !footprint::in_view(o.kind, &o.pose, self.grid)
+            })
             .map(|o| o.id)
             .collect();
         for &id in &fallen {
