@@ -310,8 +310,8 @@ impl<'a> Environment<'a> {
     /// ([`Self::goal_candidates`]) or is stuck, for a candidate at random, or the most
     /// crowded one in the config's share of episodes (none while no candidate is seen: it
     /// tries again next time). Under `goal_per_scene` the scene's goal is taken again while
-    /// it is seen, and its leaving the view ends the scene. A new scene ends the chain of
-    /// the step waiting: returned, to ship as it is.
+    /// it is seen, and its leaving the view ends the scene. A new scene dropped for an empty
+    /// or stuck one ends the chain of the step waiting: returned, to ship as it is.
     fn episode_start(&mut self) -> Result<Option<Unlabelled>> {
         if self.episode.is_some() {
             return Ok(None);
@@ -327,7 +327,13 @@ impl<'a> Environment<'a> {
             || goal_left
             || self.failures_in_a_row >= self.config.max_failures_per_scene;
         if renew {
-            chain_end = self.unlabelled.take();
+            // The goal's leaving is no end of the chain: the step waiting bootstraps on the
+            // fresh drop's first decision, as the original's label reads the next image,
+            // which keeps the grasp Q on the scale Q* is set for. An empty or stuck scene's
+            // last step ships as it is.
+            if !goal_left {
+                chain_end = self.unlabelled.take();
+            }
             self.scene_seed = self.scene_seed.wrapping_add(1);
             self.tabletop = Self::new_scene(self.config, self.scene_seed, &mut self.rng)?;
             obs = self.camera.render(&self.tabletop);

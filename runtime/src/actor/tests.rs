@@ -181,3 +181,24 @@ fn a_goal_per_scene_is_taken_again_until_it_leaves_and_then_the_scene_is_new() {
     assert_eq!(env.tabletop.object_count(), config.objects);
     assert_eq!(env.scene_goal, env.episode.as_ref().map(|e| e.goal));
 }
+
+#[test]
+fn a_scene_dropped_anew_for_its_goals_leaving_keeps_the_chain_an_emptied_one_ends_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = RunLog::create(dir.path().join("actor.mcap"), "actor").unwrap();
+    let mut config = stage2_config();
+    for goal_per_scene in [true, false] {
+        config.goal_per_scene = goal_per_scene;
+        // The goal, the scene's only object, pushed out of view; the push waits for its
+        // next state.
+        let mut env = at_the_edge(&config, &log);
+        env.scene_goal = Some(1);
+        push_off(&mut env);
+        env.episode = None;
+        let seed = env.scene_seed;
+        let chain_end = env.episode_start().unwrap();
+        assert_eq!(env.scene_seed, seed + 1, "goal per scene: {goal_per_scene}");
+        assert_eq!(chain_end.is_none(), goal_per_scene);
+        assert_eq!(env.unlabelled.is_some(), goal_per_scene);
+    }
+}
