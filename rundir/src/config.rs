@@ -45,8 +45,10 @@ pub struct RunConfig {
     /// same goal again, and the scene is dropped anew once the goal has left the view
     /// (grasped, or pushed out), as the original's training does (`main.py`: a fixed goal
     /// index; the scene restarts once the goal has left). Every goal is then an object of
-    /// a fresh ten-object drop, as the test cases' are. false: each episode draws its goal
-    /// among the objects seen, and the scene thins out over its episodes until empty.
+    /// a fresh drop, as the test cases' are; the goal's leaving does not end the chain of
+    /// labels (the last step bootstraps on the fresh drop's first decision). false: each
+    /// episode draws its goal among the objects seen, and the scene thins out over its
+    /// episodes until empty.
     #[serde(default)]
     pub goal_per_scene: bool,
     /// Before each grasp it executes, an actor tries this many other grasps of the goal
