@@ -12,7 +12,7 @@ use sim::measure::{detect_change, most_crowded};
 use sim::{Camera, Heightmaps, ObjectId, Primitive, Tabletop, workspace};
 use wire::Origin;
 
-use super::ActorId;
+use super::id::ActorId;
 use super::pictures::log_pictures;
 use super::ship::{Stream, Unlabelled};
 use rundir::ActorReport;
