@@ -32,7 +32,7 @@ pub(super) struct Environment<'a> {
     scene_seed: u64,
     tabletop: Tabletop,
     camera: Camera,
-    pub(super) episode: Option<Episode>,
+    episode: Option<Episode>,
     unlabelled: Option<Unlabelled>,
     /// Grasps in a row that held nothing: a scene stuck for too long is replaced.
     failures_in_a_row: usize,
@@ -43,7 +43,7 @@ pub(super) struct Environment<'a> {
 }
 
 /// An episode under way: what the environment sees now, the goal, and its actions so far.
-pub(super) struct Episode {
+struct Episode {
     obs: Heightmaps,
     goal: ObjectId,
     step: u32,
@@ -156,6 +156,11 @@ impl<'a> Environment<'a> {
             });
         }
         seen
+    }
+
+    /// Whether an episode is under way (between its start and its grasp).
+    pub(super) fn in_episode(&self) -> bool {
+        self.episode.is_some()
     }
 
     /// What the agent decides on in this environment, while an episode is under way.

@@ -123,7 +123,7 @@ fn tick(
     let work: Vec<_> = envs
         .iter_mut()
         .map(|env| {
-            let choice = env.episode.is_some().then(|| choices.next()).flatten();
+            let choice = env.in_episode().then(|| choices.next()).flatten();
             (env, choice)
         })
         .collect();
@@ -140,7 +140,7 @@ fn tick(
         for (step, next) in completed {
             shipper.ship(&mut env.stream, step, next.as_ref())?;
         }
-        if env.episode.is_none() {
+        if !env.in_episode() {
             ended.push(i);
         }
     }
