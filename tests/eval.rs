@@ -138,6 +138,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "sim.guarded_push_descent=true",
             "--set",
             "policy.free_border=0.25",
+            "--set",
+            "policy.landing_guard=0.004",
         ],
     );
     assert_eq!(
@@ -146,9 +148,17 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["q_star"].as_f64().unwrap(),
             margined["goal_guard"].as_f64(),
             margined["guarded_push_descent"].as_bool(),
-            margined["free_border"].as_f64()
+            margined["free_border"].as_f64(),
+            margined["landing_guard"].as_f64()
         ),
-        (0.02, 1000.0, Some(0.02), Some(true), Some(0.25))
+        (
+            0.02,
+            1000.0,
+            Some(0.02),
+            Some(true),
+            Some(0.25),
+            Some(0.004)
+        )
     );
 
     // The authors' protocol: their rule and Q*, random scenes by the Q* alone, and learning

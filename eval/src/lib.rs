@@ -171,6 +171,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         q_star: agent.policy.q_star,
         grasp_margin: agent.policy.grasp_margin,
         goal_guard: agent.policy.goal_guard,
+        landing_guard: agent.policy.landing_guard,
         push_reach: agent.policy.push_reach,
         free_border: agent.policy.free_border,
         guarded_push_descent: config.sim.guarded_push_descent,

@@ -33,6 +33,8 @@ pub(crate) struct EvalReport {
     pub(crate) grasp_margin: f32,
     /// `[policy] goal_guard`, metres, where pushes were guarded.
     pub(crate) goal_guard: Option<f32>,
+    /// `[policy] landing_guard`, metres, where pushes landing on an object were not chosen.
+    pub(crate) landing_guard: Option<f32>,
     /// `[policy] push_reach`, metres, where pushes were kept near the goal.
     pub(crate) push_reach: Option<f32>,
     /// `[policy] free_border`, where a goal with a free border ring was grasped below Q*.
@@ -54,7 +56,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -75,6 +77,10 @@ pub(crate) fn print_table(report: &EvalReport) {
         report
             .goal_guard
             .map(|margin| format!(", goal guard {} mm", 1000.0 * margin))
+            .unwrap_or_default(),
+        report
+            .landing_guard
+            .map(|margin| format!(", jaws landing clear of objects by {} mm", 1000.0 * margin))
             .unwrap_or_default(),
         report
             .push_reach

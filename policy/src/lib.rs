@@ -11,6 +11,7 @@ pub mod error;
 pub mod goal_guard;
 pub mod label;
 pub mod policy;
+pub mod push_landing;
 pub mod push_reach;
 pub mod push_sweep;
 pub mod qmaps;
@@ -23,6 +24,7 @@ pub use policy::{
     Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
     grasp_region, push_region, trial_grasps, valid_push_starts,
 };
+pub use push_landing::pushes_landing_clear;
 pub use push_reach::pushes_near_goal;
 pub use qmaps::QMaps;
 pub use reward::{GRASP_REWARD, PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

@@ -16,6 +16,7 @@ use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::error::PolicyError;
 use crate::goal_guard::pushes_keeping_goal;
+use crate::push_landing::pushes_landing_clear;
 use crate::push_reach::pushes_near_goal;
 use crate::qmaps::QMaps;
 
@@ -54,6 +55,11 @@ pub struct PolicyConfig {
     /// workspace are not chosen ([`pushes_keeping_goal`]): a goal out of the workspace is
     /// lost, and its run with it. `None`: every push start is open, as in the paper.
     pub goal_guard: Option<f32>,
+    /// Pushes whose closed jaws, widened by this margin (metres), would come down on an
+    /// object at their start are not chosen ([`pushes_landing_clear`]): the simulator
+    /// squeezes what they land on until the fingers throw it. `None`: every push start is
+    /// open, as in the paper.
+    pub landing_guard: Option<f32>,
     /// Pushes whose swept band passes farther than this (metres) from the goal are neither
     /// chosen nor drawn when exploring ([`pushes_near_goal`]): they cannot change the goal's
     /// surroundings. `None`: every push start is open, as in the paper.
@@ -93,6 +99,7 @@ impl Default for PolicyConfig {
             rule: Rule::Threshold,
             crowded_border: 0.3,
             goal_guard: None,
+            landing_guard: None,
             push_reach: None,
             free_border: None,
         }
@@ -107,6 +114,9 @@ impl PolicyConfig {
         ConfigError::check_range("crowded_border", self.crowded_border, 0.0..=1.0)?;
         if let Some(margin) = self.goal_guard {
             ConfigError::check_range("goal_guard", margin, 0.0..)?;
+        }
+        if let Some(margin) = self.landing_guard {
+            ConfigError::check_range("landing_guard", margin, 0.0..)?;
         }
         if let Some(reach) = self.push_reach {
             ConfigError::check_range("push_reach", reach, 0.0..)?;
@@ -299,8 +309,10 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
 /// Where a push may go, laid out as [`QMaps::best_where`] reads it: the
 /// [`valid_push_starts`] for every rotation; under the config's `goal_guard`, per rotation,
 /// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]); under its
-/// `push_reach`, of those, the ones that pass near the goal ([`pushes_near_goal`]). A mask
-/// that would leave no push is not applied, nor any after it.
+/// `landing_guard`, of those, the ones whose jaws come down clear of every object
+/// ([`pushes_landing_clear`]); under its `push_reach`, of those, the ones that pass near the
+/// goal ([`pushes_near_goal`]). A mask that would leave no push is not applied, nor any
+/// after it.
 pub fn push_region(
     obs: &Heightmaps,
     goal: ObjectId,
@@ -312,6 +324,9 @@ pub fn push_region(
         config
             .goal_guard
             .map(|margin| pushes_keeping_goal(obs, goal, push_length, margin)),
+        config
+            .landing_guard
+            .map(|margin| pushes_landing_clear(obs, margin)),
         config
             .push_reach
             .map(|reach| pushes_near_goal(obs, goal, push_length, reach)),

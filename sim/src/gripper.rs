@@ -43,6 +43,37 @@ const CLOSED_GAP: f32 = 0.0015;
 /// joint (`robot.py`, `close_gripper`): a gap below 0.04693 - 0.045 m is closed on nothing.
 pub(crate) const JAWS_CLOSED_GAP: f32 = 0.04693 - 0.045;
 
+/// One of the closed jaws' lower parts seen from above, in the tool frame: its extent along
+/// the closing axis (x, the direction a push moves in) and across it (y), and how far its
+/// lower face is above the pads' ends. Where a push's descent lands, what lies under a part
+/// higher than its lower face is pressed into the table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct JawsPart {
+    pub along: [f32; 2],
+    pub across: [f32; 2],
+    pub above_pad_ends: f32,
+}
+
+/// Both fingers' parts (pads, their backing and the knuckles) with the jaws closed, as a
+/// push carries them: 41 mm along the closing axis at the knuckles, 20 mm across.
+pub fn closed_jaws_parts() -> Vec<JawsPart> {
+    let shift = link_end(LINK0_PIVOT, link_angle(Jaws::Closed.gap())) - stored_origin();
+    let pad_ends = pad_end_height(Jaws::Closed);
+    [1.0f32, -1.0]
+        .into_iter()
+        .flat_map(|side| {
+            FINGER_PARTS.iter().chain(&PAD_PARTS).map(move |part| {
+                let x = [part.min[0], part.max[0]].map(|x| side * (x + shift.x));
+                JawsPart {
+                    along: [x[0].min(x[1]), x[0].max(x[1])],
+                    across: [part.min[1], part.max[1]],
+                    above_pad_ends: part.min[2] + shift.z - pad_ends,
+                }
+            })
+        })
+        .collect()
+}
+
 /// A part of the gripper as a box in the tool frame in the stored pose (+x finger): its
 /// lowest and highest corner.
 struct Part {

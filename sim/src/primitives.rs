@@ -104,6 +104,21 @@ impl ActionOutcome {
     }
 }
 
+/// How high above the table a push from pixel (`row`, `col`) lowers the closed pads' ends:
+/// [`PUSH_TOOL_ABOVE_SURFACE`] over the highest point of the window around the start, but
+/// not into the table.
+pub fn push_pad_ends_height(observation: &Heightmaps, row: usize, col: usize) -> f32 {
+    let side = observation.side();
+    let half = (PUSH_WINDOW_HALF / observation.grid.pixel_size()).round() as usize;
+    let mut surface: f32 = 0.0;
+    for r in row.saturating_sub(half)..=(row + half).min(side - 1) {
+        for c in col.saturating_sub(half)..=(col + half).min(side - 1) {
+            surface = surface.max(observation.height[observation.index(r, c)]);
+        }
+    }
+    (surface + PUSH_TOOL_ABOVE_SURFACE + pad_end_height(Jaws::Closed)).max(0.0)
+}
+
 impl Tabletop {
     /// Executes an action chosen on `observation`, which must be a rendering of this scene on
     /// this tabletop's grid (the heights at the pixel set the working height, as the
@@ -144,16 +159,9 @@ impl Tabletop {
     }
 
     fn push(&mut self, action: &Action, observation: &Heightmaps) -> ActionOutcome {
-        let grid = self.grid();
-        let [x, y] = grid.pixel_centre(action.row, action.col);
-        let half = (PUSH_WINDOW_HALF / grid.pixel_size()).round() as usize;
-        let mut surface: f32 = 0.0;
-        for row in action.row.saturating_sub(half)..=(action.row + half).min(grid.side() - 1) {
-            for col in action.col.saturating_sub(half)..=(action.col + half).min(grid.side() - 1) {
-                surface = surface.max(observation.height[observation.index(row, col)]);
-            }
-        }
-        let z = (surface + PUSH_TOOL_ABOVE_SURFACE).max(-pad_end_height(Jaws::Closed));
+        let [x, y] = self.grid().pixel_centre(action.row, action.col);
+        let z = push_pad_ends_height(observation, action.row, action.col)
+            - pad_end_height(Jaws::Closed);
         let angle = action.angle();
         let length = self.config().push_length;
         let rotation = Rotation::from_rotation_z(angle);

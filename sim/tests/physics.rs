@@ -187,6 +187,27 @@ fn a_push_coming_down_on_an_object_stops_there_and_does_not_fling_it() {
 }
 
 #[test]
+fn the_closed_jaws_are_41_mm_along_the_push_and_20_mm_across_their_pads_lowest() {
+    let parts = sim::closed_jaws_parts();
+    let extent = |f: fn(&sim::JawsPart) -> [f32; 2]| {
+        parts.iter().fold([f32::MAX, f32::MIN], |[lo, hi], p| {
+            [lo.min(f(p)[0]), hi.max(f(p)[1])]
+        })
+    };
+    let (along, across) = (extent(|p| p.along), extent(|p| p.across));
+    assert!((along[1] - along[0] - 0.041).abs() < 5e-4, "{along:?}");
+    assert!((across[1] - across[0] - 0.020).abs() < 5e-4, "{across:?}");
+    let lowest = parts
+        .iter()
+        .map(|p| p.above_pad_ends)
+        .fold(f32::MAX, f32::min);
+    assert!(
+        lowest.abs() < 1e-6,
+        "the pads' ends are the lowest faces: {lowest}"
+    );
+}
+
+#[test]
 fn a_push_that_misses_moves_nothing() {
     let mut tabletop = lone(ShapeKind::Cube, 0.0);
     let before = tabletop.object(1).unwrap().pose.translation;

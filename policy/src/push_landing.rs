@@ -1,0 +1,88 @@
+//! Pushes whose closed jaws would come down on an object. A push lowers its tool at the start
+//! to just below the highest point of a 2 cm window there, but the closed jaws are wider
+//! than that window (41 mm along the push at the knuckles): beside it they can come down on
+//! an object, which the simulator, driving them on down, squeezes into the table until the
+//! fingers give way and throw it, and its neighbours, at 1-2 m/s. A real arm would stop on
+//! the contact. Judged from the heightmap, as a robot could judge it: a start is closed where
+//! a pixel under one of the jaws' parts ([`sim::closed_jaws_parts`], widened by a margin
+//! for what the pixels miss of an object's sloping sides) stands higher than that part's
+//! lower face, the pads' ends being where the push lowers them
+//! ([`sim::push_pad_ends_height`]).
+
+use sim::{Heightmaps, ROTATIONS, closed_jaws_parts, push_pad_ends_height};
+
+/// A surface within this of a part's lower face is not pressed: bare table under the pads'
+/// ends, which come down onto it.
+const PRESS_TOLERANCE: f32 = 0.001;
+
+/// For each rotation and start pixel, laid out [rotation][row][col] as
+/// [`QMaps`](crate::QMaps): whether a push from there lowers the closed jaws, widened by
+/// `margin` metres on every side, onto nothing higher than their parts' lower faces.
+pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
+    let side = obs.side();
+    let pad_ends: Vec<f32> = (0..side * side)
+        .map(|i| push_pad_ends_height(obs, i / side, i % side))
+        .collect();
+    let mut clear = Vec::with_capacity(ROTATIONS as usize * side * side);
+    for footprint in footprints(obs.grid.pixel_size(), margin) {
+        clear.extend((0..side * side).map(|start| {
+            let (row, col) = ((start / side) as isize, (start % side) as isize);
+            !footprint.iter().any(|under| {
+                let (r, c) = (row + under.offset[1], col + under.offset[0]);
+                let inside = |a: isize| (0..side as isize).contains(&a);
+                inside(r)
+                    && inside(c)
+                    && obs.height[r as usize * side + c as usize]
+                        > pad_ends[start] + under.above_pad_ends + PRESS_TOLERANCE
+            })
+        }));
+    }
+    clear
+}
+
+/// A pixel under the closed jaws, relative to the push's start pixel: its (column, row)
+/// offset, and the lowest lower face above it of the parts it lies under, above the pads'
+/// ends.
+struct UnderJaws {
+    offset: [isize; 2],
+    above_pad_ends: f32,
+}
+
+/// For each rotation, the pixels (of `pixel_size` metres) whose centres lie under a part of
+/// the closed jaws widened by `margin` and half a pixel: a pixel counts where any of it is.
+fn footprints(pixel_size: f32, margin: f32) -> Vec<Vec<UnderJaws>> {
+    let widen = margin + 0.5 * pixel_size;
+    let parts = closed_jaws_parts();
+    let far = |[a, b]: [f32; 2]| a.abs().max(b.abs()) + widen;
+    let reach = parts
+        .iter()
+        .map(|p| far(p.along).hypot(far(p.across)))
+        .fold(0.0, f32::max);
+    let reach = (reach / pixel_size).ceil() as isize;
+    let covers = |[from, to]: [f32; 2], at: f32| (from - widen..=to + widen).contains(&at);
+    (0..ROTATIONS)
+        .map(|rotation| {
+            let angle = sim::rotation_angle(rotation);
+            let (cos, sin) = (angle.cos(), angle.sin());
+            let mut under = Vec::new();
+            for dr in -reach..=reach {
+                for dc in -reach..=reach {
+                    let (x, y) = (dc as f32 * pixel_size, dr as f32 * pixel_size);
+                    let (along, across) = (x * cos + y * sin, y * cos - x * sin);
+                    let lowest = parts
+                        .iter()
+                        .filter(|p| covers(p.along, along) && covers(p.across, across))
+                        .map(|p| p.above_pad_ends)
+                        .reduce(f32::min);
+                    if let Some(above_pad_ends) = lowest {
+                        under.push(UnderJaws {
+                            offset: [dc, dr],
+                            above_pad_ends,
+                        });
+                    }
+                }
+            }
+            under
+        })
+        .collect()
+}

@@ -1,0 +1,102 @@
+//! The landing guard against the physics it predicts: a push whose closed jaws come down on
+//! an object is closed, and in the simulator such a push does throw the object; one that
+//! comes down clear of it is open; the policy under the guard passes over a closed push
+//! however high its Q.
+
+mod common;
+mod masks;
+
+use masks::{chosen, cubes, index, push};
+use sim::rapier3d::prelude::{Pose, Rotation, Vector};
+use sim::workspace::CENTRE;
+use sim::{Camera, Heightmaps, ObjectId, Primitive, ShapeKind, SimConfig, Tabletop};
+
+use policy::{PolicyConfig, push_region, pushes_landing_clear};
+
+const GOAL: ObjectId = 1;
+/// Rotation 0 pushes towards +x, rotation 12 towards -y.
+const TOWARDS_X: u8 = 0;
+const TOWARDS_MINUS_Y: u8 = 12;
+
+/// Whether a push towards +x from `behind` metres before the 5 cm cube at the workspace
+/// centre, `aside` metres off its line, lowers the jaws (widened by `margin`) clear of it.
+fn clear(obs: &Heightmaps, behind: f32, aside: f32, margin: f32) -> bool {
+    let action = push(obs, TOWARDS_X, -behind, aside);
+    pushes_landing_clear(obs, margin)[index(obs, &action)]
+}
+
+#[test]
+fn jaws_coming_down_on_a_cube_close_the_push_and_clear_of_it_leave_it_open() {
+    let (_, obs, _) = cubes(&[(GOAL, 0.0, 0.0)]);
+    // The cube's face is 25 mm from its centre; the knuckles reach 20.5 mm ahead of the start.
+    assert!(!clear(&obs, 0.035, 0.0, 0.0));
+    assert!(clear(&obs, 0.07, 0.0, 0.0));
+    // Beside the cube: the jaws are 20 mm wide across the push.
+    assert!(clear(&obs, 0.0, 0.05, 0.0));
+    // A margin closes a start the bare jaws would clear.
+    assert!(clear(&obs, 0.044, 0.0, 0.0));
+    assert!(!clear(&obs, 0.044, 0.0, 0.004));
+}
+
+#[test]
+fn the_bare_table_closes_nothing() {
+    let (_, obs, _) = cubes(&[]);
+    assert!(pushes_landing_clear(&obs, 0.004).iter().all(|&c| c));
+}
+
+#[test]
+fn a_push_the_guard_closes_does_throw_the_object_and_one_it_leaves_open_does_not() {
+    // A tall block lying along y; pushes towards -y from beyond its end. From 65-68 mm the
+    // closed jaws come down on that end, from 80 mm beside it.
+    for (offset, closed) in [(0.065, true), (0.0675, true), (0.08, false)] {
+        let config = SimConfig::with_pixel_size(0.004);
+        let mut tabletop = Tabletop::new(&config).unwrap();
+        let lying = Pose::from_parts(
+            Vector::new(CENTRE[0], CENTRE[1], 0.025),
+            Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
+        );
+        tabletop
+            .add_object(GOAL, ShapeKind::TallBlock, [200, 50, 50], lying)
+            .unwrap();
+        tabletop.settle();
+        let obs = Camera::new(tabletop.grid()).render(&tabletop);
+        let before = tabletop.object(GOAL).unwrap().pose.translation;
+        let action = push(&obs, TOWARDS_MINUS_Y, 0.0, before.y - CENTRE[1] + offset);
+        assert_eq!(
+            pushes_landing_clear(&obs, 0.0)[index(&obs, &action)],
+            !closed,
+            "offset {offset}"
+        );
+        tabletop.act(&action, &obs).unwrap();
+        // Pushed, the block goes about as far as the push (13 cm); thrown, it leaves the view.
+        let moved = tabletop
+            .object(GOAL)
+            .map(|o| (o.pose.translation - before).truncate().length());
+        match closed {
+            true => assert_eq!(moved, None, "offset {offset}: not thrown"),
+            false => assert!(
+                moved.is_some_and(|m| m < 0.15),
+                "offset {offset}: {moved:?}"
+            ),
+        }
+    }
+}
+
+#[test]
+fn under_the_guard_the_policy_passes_over_a_closed_push() {
+    let (_, obs, config) = cubes(&[(GOAL, 0.0, 0.0)]);
+    let closed = push(&obs, TOWARDS_X, -0.035, 0.0);
+    let chosen =
+        |policy: &PolicyConfig| chosen(&obs, GOAL, config.push_length, &closed, policy, 0.0, 0);
+    assert_eq!(chosen(&PolicyConfig::default()), closed);
+    let guarded = PolicyConfig {
+        landing_guard: Some(0.0),
+        ..PolicyConfig::default()
+    };
+    let action = chosen(&guarded);
+    assert_eq!(action.primitive, Primitive::Push);
+    assert_ne!(action, closed);
+    let region = push_region(&obs, GOAL, &guarded, config.push_length);
+    assert!(region[index(&obs, &action)]);
+    assert!(!region[index(&obs, &closed)]);
+}
