@@ -140,6 +140,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "policy.free_border=0.25",
             "--set",
             "policy.landing_guard=0.004",
+            "--avoid-failed-grasps",
         ],
     );
     assert_eq!(
@@ -149,7 +150,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["goal_guard"].as_f64(),
             margined["guarded_push_descent"].as_bool(),
             margined["free_border"].as_f64(),
-            margined["landing_guard"].as_f64()
+            margined["landing_guard"].as_f64(),
+            margined["avoid_failed_grasps"].as_bool()
         ),
         (
             0.02,
@@ -157,7 +159,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             Some(0.02),
             Some(true),
             Some(0.25),
-            Some(0.004)
+            Some(0.004),
+            Some(true)
         )
     );
 

@@ -4,7 +4,7 @@
 use policy::{Decision, Mode, PolicyConfig, PolicyInput, QMaps};
 use qnet::{ActingNets, Device, Geometry, NetInput, QNetConfig, QNetError, QNets, RotatedQMaps};
 use rand_chacha::ChaCha8Rng;
-use sim::{Heightmaps, ObjectId, Primitive, SimConfig};
+use sim::{Action, Heightmaps, ObjectId, Primitive, SimConfig};
 
 /// The nets acting through the policy.
 #[derive(Clone)]
@@ -37,6 +37,8 @@ pub struct Situation<'a> {
     pub obs: &'a Heightmaps,
     pub goal: ObjectId,
     pub pushes_so_far: usize,
+    /// Grasps not to make again ([`PolicyInput::failed_grasps`]).
+    pub failed_grasps: &'a [Action],
     pub epsilon: f32,
     pub rng: &'a mut ChaCha8Rng,
 }
@@ -95,22 +97,9 @@ impl Agent {
         Ok(())
     }
 
-    /// Q maps for all rotations, then the hierarchical choice under exploration `epsilon`.
-    pub fn decide(
-        &self,
-        obs: &Heightmaps,
-        goal: ObjectId,
-        pushes_so_far: usize,
-        epsilon: f32,
-        rng: &mut ChaCha8Rng,
-    ) -> Result<Choice, AgentError> {
-        let situation = Situation {
-            obs,
-            goal,
-            pushes_so_far,
-            epsilon,
-            rng,
-        };
+    /// Q maps for all rotations, then the hierarchical choice in `situation`, under its
+    /// exploration.
+    pub fn decide(&self, situation: Situation<'_>) -> Result<Choice, AgentError> {
         let mut choices = self.decide_each(vec![situation])?;
         Ok(choices.pop().expect("one situation, one choice"))
     }
@@ -146,6 +135,7 @@ impl Agent {
                     push: push.as_ref(),
                     pushes_so_far: s.pushes_so_far,
                     push_length: self.push_length,
+                    failed_grasps: s.failed_grasps,
                 };
                 let decision =
                     policy::choose(&self.policy, self.mode, &policy_input, s.epsilon, s.rng)?;

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use sim::measure::occupancy_ratio;
 use sim::{ANY_OBJECT, Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
 
-use crate::agent::{Agent, AgentError};
+use crate::agent::{Agent, AgentError, Situation};
 use crate::metrics::{ActionRecord, CaseMetrics, RunRecord};
 use crate::test_learning::{RunLearner, TestLearning};
 
@@ -51,6 +51,10 @@ pub struct EvalConfig {
     /// The rule random scenes are tested under where it is not the agent's own: the
     /// authors' test rule leaves its border test out there.
     pub random_scene_rule: Option<Rule>,
+    /// Remember the grasps that picked nothing since the last push and make none of them
+    /// again ([`policy::PolicyInput::failed_grasps`]): frozen nets in a scene a failed grasp
+    /// left as it was choose the same grasp again.
+    pub avoid_failed_grasps: bool,
 }
 
 impl Default for EvalConfig {
@@ -65,6 +69,7 @@ impl Default for EvalConfig {
             goal_agnostic: false,
             learning: None,
             random_scene_rule: None,
+            avoid_failed_grasps: false,
         }
     }
 }
@@ -209,11 +214,18 @@ fn test_run(
         updates: 0,
     };
     let mut pushes = 0;
+    let mut failed_grasps = Vec::new();
     while record.actions.len() < max_actions && !record.outcome().decided {
         let obs = camera.render(&tabletop);
-        let choice = agent
-            .decide(&obs, goal, pushes, 0.0, &mut rng)
-            .map_err(RunError::Agent)?;
+        let situation = Situation {
+            obs: &obs,
+            goal,
+            pushes_so_far: pushes,
+            failed_grasps: &failed_grasps,
+            epsilon: 0.0,
+            rng: &mut rng,
+        };
+        let choice = agent.decide(situation).map_err(RunError::Agent)?;
         let decision = choice.decision;
         if let Some(learner) = &mut learner
             && let Some(nets) = learner.learn(&obs, &decision).map_err(RunError::Learner)?
@@ -227,10 +239,18 @@ fn test_run(
         if let Some(learner) = &mut learner {
             learner.executed(&obs, goal, decision, outcome.grasped);
         }
-        pushes = match action.primitive {
-            Primitive::Push => pushes + 1,
-            Primitive::Grasp => 0,
-        };
+        match action.primitive {
+            Primitive::Push => {
+                pushes += 1;
+                failed_grasps.clear();
+            }
+            Primitive::Grasp => {
+                pushes = 0;
+                if config.avoid_failed_grasps && outcome.grasped.is_none() {
+                    failed_grasps.push(action);
+                }
+            }
+        }
         record.actions.push(ActionRecord {
             primitive: action.primitive,
             grasped: outcome.grasped,

@@ -84,6 +84,11 @@ pub struct EvalArgs {
     /// (`policy.crowded_border`); random scenes by the Q* alone.
     #[arg(long, conflicts_with = "grasp_only")]
     authors_rule: bool,
+    /// Make no grasp again that picked nothing since the last push, nor one within 1 cm of
+    /// it at its rotation or the next either side: frozen nets in a scene a failed grasp left
+    /// as it was choose the same grasp again.
+    #[arg(long)]
+    avoid_failed_grasps: bool,
     /// Also say why runs failed: how incomplete runs ended, what the grasps picked, what the
     /// pushes did for the goal, and how often grasps at each goal grasp Q picked the goal.
     #[arg(long)]
@@ -131,6 +136,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         goal_agnostic: args.goal_agnostic,
         learning,
         random_scene_rule: args.authors_rule.then_some(Rule::Threshold),
+        avoid_failed_grasps: args.avoid_failed_grasps,
         ..EvalConfig::default()
     };
     let reports = agent::evaluate(|| agent.clone(), &cases, &eval)?;
@@ -172,6 +178,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         grasp_margin: agent.policy.grasp_margin,
         goal_guard: agent.policy.goal_guard,
         landing_guard: agent.policy.landing_guard,
+        avoid_failed_grasps: eval.avoid_failed_grasps,
         push_reach: agent.policy.push_reach,
         free_border: agent.policy.free_border,
         guarded_push_descent: config.sim.guarded_push_descent,

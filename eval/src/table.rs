@@ -35,6 +35,8 @@ pub(crate) struct EvalReport {
     pub(crate) goal_guard: Option<f32>,
     /// `[policy] landing_guard`, metres, where pushes landing on an object were not chosen.
     pub(crate) landing_guard: Option<f32>,
+    /// `--avoid-failed-grasps`: no grasp that picked nothing since the last push made again.
+    pub(crate) avoid_failed_grasps: bool,
     /// `[policy] push_reach`, metres, where pushes were kept near the goal.
     pub(crate) push_reach: Option<f32>,
     /// `[policy] free_border`, where a goal with a free border ring was grasped below Q*.
@@ -56,7 +58,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -82,6 +84,11 @@ pub(crate) fn print_table(report: &EvalReport) {
             .landing_guard
             .map(|margin| format!(", jaws landing clear of objects by {} mm", 1000.0 * margin))
             .unwrap_or_default(),
+        if report.avoid_failed_grasps {
+            ", no failed grasp repeated"
+        } else {
+            ""
+        },
         report
             .push_reach
             .map(|reach| format!(", pushes within {} mm of the goal", 1000.0 * reach))

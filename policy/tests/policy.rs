@@ -13,7 +13,9 @@ use policy::{
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use sim::{Camera, Heightmaps, ObjectId, PixelGrid, Primitive, ROTATIONS, SimConfig, Tabletop};
+use sim::{
+    Action, Camera, Heightmaps, ObjectId, PixelGrid, Primitive, ROTATIONS, SimConfig, Tabletop,
+};
 
 const GOAL: ObjectId = 1;
 const PIXEL_SIZE: f32 = 0.004;
@@ -63,6 +65,7 @@ fn input<'a>(
         push,
         pushes_so_far,
         push_length: 0.13,
+        failed_grasps: &[],
     }
 }
 
@@ -302,6 +305,60 @@ fn grasp_only_mode_and_missing_push_maps_always_grasp() {
         (Primitive::Grasp, Reason::NoPushMaps)
     );
     assert_eq!(at(&d), (3, f.goal_pixel));
+}
+
+#[test]
+fn a_grasp_that_picked_nothing_is_not_made_again_nor_its_near_twins() {
+    let obs = scene();
+    let centre = pixel(&obs, 0.0, 0.0);
+    let (near, far) = ((centre.0, centre.1 + 2), (centre.0 + 4, centre.1));
+    // The best grasp, a twin 8 mm beside it and the same grasp the other way along the jaw
+    // line (rotation 3 + 8), then one 16 mm away, then one at a rotation 2 turns off.
+    let grasp = maps(
+        &obs,
+        0.0,
+        &[
+            (3, centre, 2.5),
+            (4, near, 2.4),
+            (11, centre, 2.35),
+            (3, far, 2.2),
+            (5, centre, 2.1),
+        ],
+    );
+    let failed = |actions: &[(u8, (usize, usize))]| -> Vec<Action> {
+        actions
+            .iter()
+            .map(|&(rotation, (row, col))| Action {
+                primitive: Primitive::Grasp,
+                rotation,
+                row,
+                col,
+            })
+            .collect()
+    };
+    let choose_after = |failed: &[Action]| {
+        let input = PolicyInput {
+            failed_grasps: failed,
+            ..input(&obs, &grasp, None, 0)
+        };
+        greedy_with(&PolicyConfig::default(), Mode::GraspOnly, &input)
+    };
+    assert_eq!(at(&choose_after(&[])), (3, centre));
+    let d = choose_after(&failed(&[(3, centre)]));
+    assert_eq!(at(&d), (3, far));
+    // The goal's grasp Q the rule compares with Q* is the best grasp still open.
+    assert_eq!(d.goal_grasp_q, 2.2);
+    assert_eq!(
+        at(&choose_after(&failed(&[(3, centre), (3, far)]))),
+        (5, centre)
+    );
+    // Where every grasp of the goal has failed, the region is as it was.
+    let side = obs.side();
+    let everywhere: Vec<(u8, (usize, usize))> = (0..side * side)
+        .filter(|&i| obs.ids[i] == GOAL)
+        .flat_map(|i| (0..ROTATIONS).map(move |r| (r, (i / side, i % side))))
+        .collect();
+    assert_eq!(at(&choose_after(&failed(&everywhere))), (3, centre));
 }
 
 #[test]

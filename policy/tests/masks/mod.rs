@@ -62,6 +62,7 @@ pub fn chosen(
         push: Some(&push_maps),
         pushes_so_far: 0,
         push_length,
+        failed_grasps: &[],
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     choose(policy, Mode::PushGrasp, &input, epsilon, &mut rng)

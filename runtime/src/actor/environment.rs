@@ -170,6 +170,7 @@ impl<'a> Environment<'a> {
             obs: &episode.obs,
             goal: episode.goal,
             pushes_so_far: episode.step as usize,
+            failed_grasps: &[],
             epsilon: self.config.epsilon(self.id.index, self.report.actions),
             rng: &mut self.rng,
         })
