@@ -85,8 +85,8 @@ pub struct EvalArgs {
     #[arg(long, conflicts_with = "grasp_only")]
     authors_rule: bool,
     /// Make no grasp again that picked nothing since the last push, nor one within 1 cm of
-    /// it at its rotation or the next either side: frozen nets in a scene a failed grasp left
-    /// as it was choose the same grasp again.
+    /// it at its rotation or the next either side, nor those turned half round: frozen nets
+    /// in a scene a failed grasp left as it was choose the same grasp again.
     #[arg(long)]
     avoid_failed_grasps: bool,
     /// Also say why runs failed: how incomplete runs ended, what the grasps picked, what the

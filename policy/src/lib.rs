@@ -9,6 +9,7 @@
 
 pub mod error;
 pub mod goal_guard;
+pub mod grasp_repeats;
 pub mod label;
 pub mod policy;
 pub mod push_landing;
@@ -19,10 +20,11 @@ pub mod reward;
 
 pub use error::PolicyError;
 pub use goal_guard::pushes_keeping_goal;
+pub use grasp_repeats::{REPEAT_RADIUS, grasps_not_repeating};
 pub use label::{grasp_label, push_label};
 pub use policy::{
-    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, REPEAT_RADIUS, Reason, Rule,
-    choose, grasp_region, push_region, trial_grasps, valid_push_starts,
+    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
+    grasp_region, push_region, trial_grasps, valid_push_starts,
 };
 pub use push_landing::pushes_landing_clear;
 pub use push_reach::pushes_near_goal;

@@ -16,6 +16,7 @@ use sim::{Action, ConfigError, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::error::PolicyError;
 use crate::goal_guard::pushes_keeping_goal;
+use crate::grasp_repeats::grasps_not_repeating;
 use crate::push_landing::pushes_landing_clear;
 use crate::push_reach::pushes_near_goal;
 use crate::qmaps::QMaps;
@@ -197,13 +198,9 @@ pub struct PolicyInput<'a> {
     pub push_length: f32,
     /// Grasps that picked nothing, remembered by the caller (the test loop under `eval
     /// --avoid-failed-grasps`; empty otherwise): none is chosen again, nor a grasp near it
-    /// ([`REPEAT_RADIUS`]).
+    /// ([`REPEAT_RADIUS`](crate::REPEAT_RADIUS)).
     pub failed_grasps: &'a [Action],
 }
-
-/// A grasp within this distance (metres) of one that picked nothing, at its rotation or the
-/// next either side, either way along the jaw line, is taken as the same grasp again.
-pub const REPEAT_RADIUS: f32 = 0.01;
 
 /// The policy's choice and what it was based on.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -382,11 +379,10 @@ pub fn choose(
         check_shape(Primitive::Push, push, obs)?;
     }
 
-    let region = without_repeats(
+    let region = grasps_not_repeating(
         grasp_region(obs, input.goal, config.grasp_margin),
         input.failed_grasps,
-        obs.side(),
-        obs.grid.pixel_size(),
+        obs,
     );
     let best_grasp = input
         .grasp
@@ -463,42 +459,6 @@ pub fn choose(
         reason,
         goal_visible: obs.goal_mask(input.goal).contains(&true),
     })
-}
-
-/// The grasp region (one mask for every rotation) with the grasps near `failed` ones closed,
-/// per rotation ([`REPEAT_RADIUS`]); as it was when nothing failed or nothing would be left.
-fn without_repeats(
-    region: Vec<bool>,
-    failed: &[Action],
-    side: usize,
-    pixel_size: f32,
-) -> Vec<bool> {
-    if failed.is_empty() {
-        return region;
-    }
-    let reach = (REPEAT_RADIUS / pixel_size) as isize;
-    let mut open = region.repeat(ROTATIONS as usize);
-    for grasp in failed {
-        let (row, col) = (grasp.row as isize, grasp.col as isize);
-        for turn in [
-            -1,
-            0,
-            1,
-            ROTATIONS as isize / 2 - 1,
-            ROTATIONS as isize / 2,
-            ROTATIONS as isize / 2 + 1,
-        ] {
-            let rotation = (grasp.rotation as isize + turn).rem_euclid(ROTATIONS as isize) as usize;
-            for r in (row - reach).max(0)..=(row + reach).min(side as isize - 1) {
-                for c in (col - reach).max(0)..=(col + reach).min(side as isize - 1) {
-                    if (r - row).pow(2) + (c - col).pow(2) <= reach * reach {
-                        open[(rotation * side + r as usize) * side + c as usize] = false;
-                    }
-                }
-            }
-        }
-    }
-    if open.contains(&true) { open } else { region }
 }
 
 /// Grasps of `goal` to try on copies of the scene beside the one `chosen` executes
