@@ -314,10 +314,12 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
 /// Where a push may go, laid out as [`QMaps::best_where`] reads it: the
 /// [`valid_push_starts`] for every rotation; under the config's `goal_guard`, per rotation,
 /// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]); under its
-/// `landing_guard`, of those, the ones whose jaws come down clear of every object
-/// ([`pushes_landing_clear`]); under its `push_reach`, of those, the ones that pass near the
-/// goal ([`pushes_near_goal`]). A mask that would leave no push is not applied, nor any
-/// after it.
+/// `push_reach`, of those, the ones that pass near the goal ([`pushes_near_goal`]); under
+/// its `landing_guard`, of those, the ones whose jaws come down clear of every object
+/// ([`pushes_landing_clear`]). A mask that would leave no push is not applied, nor any
+/// after it: the landing guard comes last so that, where it would close every push near a
+/// goal packed in on all sides, the pushes that reach the goal stay open rather than
+/// pushes in the air, which change nothing.
 pub fn push_region(
     obs: &Heightmaps,
     goal: ObjectId,
@@ -330,11 +332,11 @@ pub fn push_region(
             .goal_guard
             .map(|margin| pushes_keeping_goal(obs, goal, push_length, margin)),
         config
-            .landing_guard
-            .map(|margin| pushes_landing_clear(obs, margin)),
-        config
             .push_reach
             .map(|reach| pushes_near_goal(obs, goal, push_length, reach)),
+        config
+            .landing_guard
+            .map(|margin| pushes_landing_clear(obs, margin)),
     ]
     .into_iter()
     .flatten()

@@ -1,7 +1,8 @@
 //! The landing guard against the physics it predicts: a push whose closed jaws come down on
 //! an object is closed, and in the simulator such a push does throw the object; one that
 //! comes down clear of it is open; the policy under the guard passes over a closed push
-//! however high its Q.
+//! however high its Q; where the guard would close every push near the goal, those stay
+//! open rather than the pushes in the air.
 
 mod common;
 mod masks;
@@ -9,9 +10,11 @@ mod masks;
 use masks::{chosen, cubes, index, push};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
-use sim::{Camera, Heightmaps, ObjectId, Primitive, ShapeKind, SimConfig, Tabletop};
+use sim::{Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop};
 
-use policy::{PolicyConfig, push_region, pushes_landing_clear};
+use policy::{
+    PolicyConfig, push_region, pushes_landing_clear, pushes_near_goal, valid_push_starts,
+};
 
 const GOAL: ObjectId = 1;
 /// Rotation 0 pushes towards +x, rotation 12 towards -y.
@@ -99,4 +102,31 @@ fn under_the_guard_the_policy_passes_over_a_closed_push() {
     let region = push_region(&obs, GOAL, &guarded, config.push_length);
     assert!(region[index(&obs, &action)]);
     assert!(!region[index(&obs, &closed)]);
+}
+
+#[test]
+fn where_the_guard_would_close_every_push_near_the_goal_those_pushes_stay_open() {
+    // A margin this wide leaves open only starts far out in the workspace, none within the
+    // reach of the goal.
+    const WIDE: f32 = 0.15;
+    const REACH: f32 = 0.04;
+    let (_, obs, config) = cubes(&[(GOAL, 0.0, 0.0)]);
+    let near = pushes_near_goal(&obs, GOAL, config.push_length, REACH);
+    let clear = pushes_landing_clear(&obs, WIDE);
+    let both =
+        |a: &[bool], b: &[bool]| -> Vec<bool> { a.iter().zip(b).map(|(&a, &b)| a && b).collect() };
+    assert!(clear.contains(&true));
+    assert!(!both(&near, &clear).contains(&true));
+    let region = |policy: &PolicyConfig| push_region(&obs, GOAL, policy, config.push_length);
+    let guarded = PolicyConfig {
+        landing_guard: Some(WIDE),
+        ..PolicyConfig::default()
+    };
+    assert!(!both(&region(&guarded), &near).contains(&true));
+    let reaching_and_guarded = PolicyConfig {
+        push_reach: Some(REACH),
+        ..guarded
+    };
+    let starts = valid_push_starts(&obs).repeat(ROTATIONS as usize);
+    assert_eq!(region(&reaching_and_guarded), both(&starts, &near));
 }
