@@ -141,6 +141,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "--set",
             "policy.landing_guard=0.004",
             "--avoid-failed-grasps",
+            "--grasp-after-idle-push",
         ],
     );
     assert_eq!(
@@ -151,7 +152,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["guarded_push_descent"].as_bool(),
             margined["free_border"].as_f64(),
             margined["landing_guard"].as_f64(),
-            margined["avoid_failed_grasps"].as_bool()
+            margined["avoid_failed_grasps"].as_bool(),
+            margined["grasp_after_idle_push"].as_bool()
         ),
         (
             0.02,
@@ -160,6 +162,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             Some(true),
             Some(0.25),
             Some(0.004),
+            Some(true),
             Some(true)
         )
     );

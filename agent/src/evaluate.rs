@@ -20,7 +20,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use sim::measure::occupancy_ratio;
+use sim::measure::{occupancy_ratio, scene_changed};
 use sim::{ANY_OBJECT, Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
 
 use crate::agent::{Agent, AgentError, Situation};
@@ -55,6 +55,10 @@ pub struct EvalConfig {
     /// again ([`policy::PolicyInput::failed_grasps`]): frozen nets in a scene a failed grasp
     /// left as it was choose the same grasp again.
     pub avoid_failed_grasps: bool,
+    /// After a push that moved nothing ([`sim::measure::scene_changed`]), grasp, as when the
+    /// push budget is spent: frozen nets in a scene left as it was choose the same push
+    /// again, until the budget is spent, and then grasp in that same scene.
+    pub grasp_after_idle_push: bool,
 }
 
 impl Default for EvalConfig {
@@ -70,6 +74,7 @@ impl Default for EvalConfig {
             learning: None,
             random_scene_rule: None,
             avoid_failed_grasps: false,
+            grasp_after_idle_push: false,
         }
     }
 }
@@ -215,8 +220,14 @@ fn test_run(
     };
     let mut pushes = 0;
     let mut failed_grasps = Vec::new();
+    let mut before_push = None;
     while record.actions.len() < max_actions && !record.outcome().decided {
         let obs = camera.render(&tabletop);
+        if let Some(before) = before_push.take()
+            && !scene_changed(&before, &obs)
+        {
+            pushes = pushes.max(agent.policy.max_pushes);
+        }
         let situation = Situation {
             obs: &obs,
             goal,
@@ -243,6 +254,9 @@ fn test_run(
             Primitive::Push => {
                 pushes += 1;
                 failed_grasps.clear();
+                if config.grasp_after_idle_push {
+                    before_push = Some(obs.clone());
+                }
             }
             Primitive::Grasp => {
                 pushes = 0;

@@ -89,6 +89,10 @@ pub struct EvalArgs {
     /// in a scene a failed grasp left as it was choose the same grasp again.
     #[arg(long)]
     avoid_failed_grasps: bool,
+    /// After a push that moved nothing, grasp, as when the push budget is spent: frozen nets
+    /// in a scene left as it was choose the same push again until the budget is spent.
+    #[arg(long)]
+    grasp_after_idle_push: bool,
     /// Also say why runs failed: how incomplete runs ended, what the grasps picked, what the
     /// pushes did for the goal, and how often grasps at each goal grasp Q picked the goal.
     #[arg(long)]
@@ -137,6 +141,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         learning,
         random_scene_rule: args.authors_rule.then_some(Rule::Threshold),
         avoid_failed_grasps: args.avoid_failed_grasps,
+        grasp_after_idle_push: args.grasp_after_idle_push,
         ..EvalConfig::default()
     };
     let reports = agent::evaluate(|| agent.clone(), &cases, &eval)?;
@@ -179,6 +184,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         goal_guard: agent.policy.goal_guard,
         landing_guard: agent.policy.landing_guard,
         avoid_failed_grasps: eval.avoid_failed_grasps,
+        grasp_after_idle_push: eval.grasp_after_idle_push,
         push_reach: agent.policy.push_reach,
         free_border: agent.policy.free_border,
         guarded_push_descent: config.sim.guarded_push_descent,

@@ -37,6 +37,8 @@ pub(crate) struct EvalReport {
     pub(crate) landing_guard: Option<f32>,
     /// `--avoid-failed-grasps`: no grasp that picked nothing since the last push made again.
     pub(crate) avoid_failed_grasps: bool,
+    /// `--grasp-after-idle-push`: a grasp next after a push that moved nothing.
+    pub(crate) grasp_after_idle_push: bool,
     /// `[policy] push_reach`, metres, where pushes were kept near the goal.
     pub(crate) push_reach: Option<f32>,
     /// `[policy] free_border`, where a goal with a free border ring was grasped below Q*.
@@ -58,7 +60,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -86,6 +88,11 @@ pub(crate) fn print_table(report: &EvalReport) {
             .unwrap_or_default(),
         if report.avoid_failed_grasps {
             ", no failed grasp repeated"
+        } else {
+            ""
+        },
+        if report.grasp_after_idle_push {
+            ", a grasp after a push that moved nothing"
         } else {
             ""
         },

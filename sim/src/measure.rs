@@ -1,6 +1,7 @@
 //! Scene measurements the rewards need, as the paper defines them at 2 mm pixels and scaled
 //! to the grid's pixel size: the occupancy ratio of the ring around the goal (and the object
-//! whose ring is most occupied), and change detection around the goal after a push.
+//! whose ring is most occupied), change detection around the goal after a push, and whether
+//! a push moved anything at all.
 
 use image::{GrayImage, Luma};
 use imageproc::distance_transform::Norm;
@@ -121,4 +122,18 @@ pub fn detect_change(before: &Heightmaps, after: &Heightmaps, goal: ObjectId) ->
         detected: changed_pixels > changed_pixels_needed
             && occupancy_before - occupancy_after > OCCUPANCY_DROP,
     }
+}
+
+/// Whether anything moved between two observations: more pixels anywhere than change
+/// detection needs around the goal whose height rose or fell by at least its centimetre.
+/// A push that moved nothing leaves the scene as it was.
+pub fn scene_changed(before: &Heightmaps, after: &Heightmaps) -> bool {
+    let changed_pixels = before
+        .height
+        .iter()
+        .zip(&after.height)
+        .filter(|(b, a)| (*b - *a).abs() >= DECREASE_BAND.0)
+        .count();
+    let scale = before.grid.scale();
+    changed_pixels > (CHANGED_PIXELS_REF * scale * scale).round() as usize
 }

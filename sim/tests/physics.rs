@@ -1,12 +1,14 @@
 //! Physical sanity of the tabletop: grasps hold what they should and only that, pushes move
-//! things the way they push, nothing falls through the table, scenes settle, and the same
-//! seed gives the same world bit for bit.
+//! things the way they push (and a push that misses leaves the scene as it was), nothing
+//! falls through the table, scenes settle, and the same seed gives the same world bit for
+//! bit.
 
 use std::f32::consts::FRAC_PI_4;
 use std::path::Path;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use sim::measure::scene_changed;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::{CENTRE, X_MAX};
 use sim::{
@@ -146,6 +148,7 @@ fn a_push_moves_a_cube_along_the_push_direction() {
             moved.z.abs() < 0.005,
             "the cube slides, it does not jump: {moved:?}"
         );
+        assert!(scene_changed(&maps, &observe(&tabletop)));
     }
 }
 
@@ -223,6 +226,7 @@ fn a_push_that_misses_moves_nothing() {
     tabletop.act(&action, &maps).unwrap();
     let moved = tabletop.object(1).unwrap().pose.translation - before;
     assert!(moved.length() < 1e-3, "moved {moved:?}");
+    assert!(!scene_changed(&maps, &observe(&tabletop)));
 }
 
 #[test]
