@@ -94,6 +94,13 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             let actions = run["actions"].as_array().unwrap();
             assert!(!actions.is_empty());
             assert!(actions.iter().all(|a| a["goal_grasp_q"].is_number()));
+            // The goal is in view whenever an action is chosen: at most half the
+            // workspace's side inside its edge.
+            assert!(actions.iter().all(|a| {
+                a["goal_inside_edge"]
+                    .as_f64()
+                    .is_some_and(|inside| inside <= 0.2241)
+            }));
         }
     }
     // The average is the paper's "challenging" column: the arrangements, not random scenes.

@@ -21,6 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sim::measure::{occupancy_ratio, scene_changed};
+use sim::workspace::inside_by;
 use sim::{ANY_OBJECT, Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
 
 use crate::agent::{Agent, AgentError, Situation};
@@ -246,6 +247,10 @@ fn test_run(
                 .map_err(|e| RunError::Agent(e.into()))?;
         }
         let action = decision.action;
+        let goal_inside_edge = tabletop.object(goal).map(|o| {
+            let centre = o.pose.translation;
+            inside_by(centre.x, centre.y)
+        });
         let outcome = tabletop.act(&action, &obs).map_err(RunError::Sim)?;
         if let Some(learner) = &mut learner {
             learner.executed(&obs, goal, decision, outcome.grasped);
@@ -270,6 +275,7 @@ fn test_run(
             grasped: outcome.grasped,
             goal_grasp_q: decision.goal_grasp_q,
             goal_border_occupancy: Some(occupancy_ratio(&obs, goal)),
+            goal_inside_edge,
         });
         record.objects_left = tabletop.objects().count();
         record.goal_lost =

@@ -33,6 +33,12 @@ pub struct ActionRecord {
     /// (`sim::measure::occupancy_ratio`); absent from records written before it was kept.
     #[serde(default)]
     pub goal_border_occupancy: Option<f32>,
+    /// How far (metres) the goal's centre lay inside the workspace's nearest edge when the
+    /// action was chosen (`sim::workspace::inside_by`; negative past it): a goal at the edge
+    /// leaves the view at a nudge. Absent from records written before it was kept, and for
+    /// a goal-agnostic run.
+    #[serde(default)]
+    pub goal_inside_edge: Option<f32>,
 }
 
 /// What happened in one test run.

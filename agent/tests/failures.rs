@@ -13,6 +13,7 @@ fn action(primitive: Primitive, grasped: Option<u8>, q: f32, border: f32) -> Act
         grasped,
         goal_grasp_q: q,
         goal_border_occupancy: Some(border),
+        goal_inside_edge: None,
     }
 }
 

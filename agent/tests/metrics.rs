@@ -12,6 +12,7 @@ fn push() -> ActionRecord {
         grasped: None,
         goal_grasp_q: 0.0,
         goal_border_occupancy: None,
+        goal_inside_edge: None,
     }
 }
 
@@ -21,6 +22,7 @@ fn grasp(grasped: Option<u8>) -> ActionRecord {
         grasped,
         goal_grasp_q: 0.0,
         goal_border_occupancy: None,
+        goal_inside_edge: None,
     }
 }
 

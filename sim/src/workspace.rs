@@ -105,3 +105,8 @@ impl PixelGrid {
 pub fn contains(x: f32, y: f32) -> bool {
     (X_MIN..=X_MAX).contains(&x) && (Y_MIN..=Y_MAX).contains(&y)
 }
+
+/// How far a world point lies inside the workspace's nearest edge (metres); negative past it.
+pub fn inside_by(x: f32, y: f32) -> f32 {
+    (x - X_MIN).min(X_MAX - x).min(y - Y_MIN).min(Y_MAX - y)
+}

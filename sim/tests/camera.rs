@@ -2,7 +2,7 @@
 
 use sim::measure::{detect_change, most_crowded, occupancy_ratio};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
-use sim::workspace::{CENTRE, X_MIN, Y_MIN};
+use sim::workspace::{CENTRE, SIDE, X_MAX, X_MIN, Y_MIN, inside_by};
 use sim::{ANY_OBJECT, Camera, Heightmaps, ShapeKind, SimConfig, Tabletop};
 
 fn render(tabletop: &Tabletop) -> Heightmaps {
@@ -302,4 +302,11 @@ fn shape_bounds_hold_every_part_and_match_the_catalogue_sizes() {
             }
         }
     }
+}
+
+#[test]
+fn a_point_lies_inside_the_workspace_by_its_distance_to_the_nearest_edge() {
+    assert!((inside_by(CENTRE[0], CENTRE[1]) - SIDE / 2.0).abs() < 1e-6);
+    assert!((inside_by(X_MIN + 0.03, CENTRE[1] + 0.1) - 0.03).abs() < 1e-6);
+    assert!((inside_by(X_MAX + 0.01, CENTRE[1]) + 0.01).abs() < 1e-6);
 }
