@@ -7,6 +7,7 @@
 //! paper's grasp and push rewards, and turns a step's reward and next value into the label
 //! the learner trains towards.
 
+pub mod config;
 pub mod error;
 pub mod goal_guard;
 pub mod grasp_repeats;
@@ -16,17 +17,17 @@ pub mod push_landing;
 pub mod push_reach;
 pub mod push_sweep;
 pub mod qmaps;
+pub mod regions;
 pub mod reward;
 
+pub use config::{PolicyConfig, Rule};
 pub use error::PolicyError;
 pub use goal_guard::pushes_keeping_goal;
 pub use grasp_repeats::{REPEAT_RADIUS, grasps_not_repeating};
 pub use label::{grasp_label, push_label};
-pub use policy::{
-    Decision, Mode, PUSH_START_MAX_HEIGHT, PolicyConfig, PolicyInput, Reason, Rule, choose,
-    grasp_region, push_region, trial_grasps, valid_push_starts,
-};
+pub use policy::{Decision, Mode, PolicyInput, Reason, choose, trial_grasps};
 pub use push_landing::pushes_landing_clear;
 pub use push_reach::pushes_near_goal;
 pub use qmaps::QMaps;
+pub use regions::{PUSH_START_MAX_HEIGHT, grasp_region, push_region, valid_push_starts};
 pub use reward::{GRASP_REWARD, PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

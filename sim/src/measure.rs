@@ -110,8 +110,7 @@ pub fn detect_change(before: &Heightmaps, after: &Heightmaps, goal: ObjectId) ->
         .zip(before.height.iter().zip(&after.height))
         .filter(|(r, (b, a))| **r > 0 && (DECREASE_BAND.0..=DECREASE_BAND.1).contains(&(*b - *a)))
         .count();
-    let scale = before.grid.scale();
-    let changed_pixels_needed = (CHANGED_PIXELS_REF * scale * scale).round() as usize;
+    let changed_pixels_needed = changed_pixels_needed(before);
     let occupancy_before = occupancy_ratio(before, goal);
     let occupancy_after = occupancy_ratio(after, goal);
     ChangeReport {
@@ -134,6 +133,11 @@ pub fn scene_changed(before: &Heightmaps, after: &Heightmaps) -> bool {
         .zip(&after.height)
         .filter(|(b, a)| (*b - *a).abs() >= DECREASE_BAND.0)
         .count();
-    let scale = before.grid.scale();
-    changed_pixels > (CHANGED_PIXELS_REF * scale * scale).round() as usize
+    changed_pixels > changed_pixels_needed(before)
+}
+
+/// The changed pixels a change needs at this grid's pixel size (50 at 2 mm, scaled by area).
+fn changed_pixels_needed(maps: &Heightmaps) -> usize {
+    let scale = maps.grid.scale();
+    (CHANGED_PIXELS_REF * scale * scale).round() as usize
 }

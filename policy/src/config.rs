@@ -1,0 +1,127 @@
+//! The policy's settings: the paper's Q* rule and its push budget, exploration's rate, and
+//! the test-time masks (grasp margin, goal guard, landing guard, push reach, free border),
+//! each off or at the paper's value by default, each checked on load.
+
+use std::ops::Bound;
+
+use serde::{Deserialize, Serialize};
+use sim::ConfigError;
+
+/// The policy's settings; the defaults are the paper's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PolicyConfig {
+    /// Q*: grasp once the goal's grasp Q exceeds this (just below the 2.0 a reliable grasp
+    /// converges to with gamma = 0.5).
+    pub q_star: f32,
+    /// Pushes allowed in an episode before the grasp is forced.
+    pub max_pushes: usize,
+    /// Grasps stay this far (metres) inside the goal's mask, where the mask is wider than
+    /// twice this (else they go to its deepest pixels): in clutter, direct grasps on the
+    /// goal's rim fail most often (results/archive.md, "Grasps off the goal's rim"). 0:
+    /// anywhere on the mask, as the paper.
+    pub grasp_margin: f32,
+    /// Exploration rate at iteration 0.
+    pub epsilon_start: f32,
+    /// Exploration rate the decay stops at.
+    pub epsilon_end: f32,
+    /// Factor the exploration rate shrinks by per action. f64: 0.9998 in f32 is off by 2.6e-8,
+    /// which compounds to a relative 2e-4 by the time epsilon reaches its floor.
+    pub epsilon_decay: f64,
+    /// How push or grasp is chosen in push-grasp mode.
+    pub rule: Rule,
+    /// Under [`Rule::ThresholdOrCrowded`]: push while more than this share of the ring
+    /// around the goal is occupied ([`sim::measure::occupancy_ratio`]; the authors' test:
+    /// 0.3).
+    pub crowded_border: f32,
+    /// Pushes predicted to leave the goal's centre less than this far (metres) inside the
+    /// workspace are not chosen ([`crate::pushes_keeping_goal`]): a goal out of the
+    /// workspace is lost, and its run with it. `None`: every push start is open, as in the
+    /// paper.
+    pub goal_guard: Option<f32>,
+    /// Pushes whose closed jaws, widened by this margin (metres), would come down on an
+    /// object at their start are not chosen ([`crate::pushes_landing_clear`]): the
+    /// simulator squeezes what they land on until the fingers throw it. `None`: every push
+    /// start is open, as in the paper.
+    pub landing_guard: Option<f32>,
+    /// Pushes whose swept band passes farther than this (metres) from the goal are neither
+    /// chosen nor drawn when exploring ([`crate::pushes_near_goal`]): they cannot change
+    /// the goal's surroundings. `None`: every push start is open, as in the paper.
+    pub push_reach: Option<f32>,
+    /// Under the Q* rules: grasp, whatever the goal's grasp Q, once at most this share of
+    /// the goal's border ring is occupied ([`sim::measure::occupancy_ratio`]). A goal with
+    /// nothing around it needs no push, and pushing a free goal on is how most goals leave
+    /// the scene. `None`: Q* alone decides, as in the paper.
+    pub free_border: Option<f32>,
+}
+
+/// How the policy chooses between pushing and grasping.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Rule {
+    /// The paper's: grasp once the goal's grasp Q exceeds Q*, else push.
+    #[default]
+    Threshold,
+    /// Goal-conditioned VPG's: the primitive whose best Q is higher (the grasp's inside the
+    /// goal mask, the push's over its valid starts, since no push starts on an object).
+    HigherQ,
+    /// The authors' code at test time on its designed cases (`main.py`, not the paper): push
+    /// while the goal's border ring is more than `crowded_border` occupied or its grasp Q is
+    /// at most Q* (there 1.5), else grasp.
+    ThresholdOrCrowded,
+}
+
+impl Default for PolicyConfig {
+    fn default() -> Self {
+        Self {
+            q_star: 1.8,
+            max_pushes: 5,
+            grasp_margin: 0.0,
+            epsilon_start: 0.5,
+            epsilon_end: 0.1,
+            epsilon_decay: 0.9998,
+            rule: Rule::Threshold,
+            crowded_border: 0.3,
+            goal_guard: None,
+            landing_guard: None,
+            push_reach: None,
+            free_border: None,
+        }
+    }
+}
+
+impl PolicyConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        ConfigError::check_range("q_star", self.q_star, ..)?;
+        ConfigError::check_range("grasp_margin", self.grasp_margin, 0.0..)?;
+        ConfigError::check_range("crowded_border", self.crowded_border, 0.0..=1.0)?;
+        if let Some(margin) = self.goal_guard {
+            ConfigError::check_range("goal_guard", margin, 0.0..)?;
+        }
+        if let Some(margin) = self.landing_guard {
+            ConfigError::check_range("landing_guard", margin, 0.0..)?;
+        }
+        if let Some(reach) = self.push_reach {
+            ConfigError::check_range("push_reach", reach, 0.0..)?;
+        }
+        if let Some(free) = self.free_border {
+            ConfigError::check_range("free_border", free, 0.0..=1.0)?;
+        }
+        ConfigError::check_range("epsilon_start", self.epsilon_start, 0.0..=1.0)?;
+        ConfigError::check_range("epsilon_end", self.epsilon_end, 0.0..=1.0)?;
+        ConfigError::check_range(
+            "epsilon_decay",
+            self.epsilon_decay,
+            (Bound::Excluded(0.0), Bound::Included(1.0)),
+        )
+    }
+
+    /// The exploration rate after `iteration` actions: max(start * decay^iteration, end), as
+    /// the original's max(0.5 * 0.9998^iteration, 0.1).
+    pub fn epsilon(&self, iteration: u64) -> f32 {
+        // powf: the exponent does not fit powi's i32.
+        let decayed = f64::from(self.epsilon_start) * self.epsilon_decay.powf(iteration as f64);
+        decayed.max(f64::from(self.epsilon_end)) as f32
+    }
+}

@@ -1,0 +1,135 @@
+//! Where each primitive may act, as masks the argmax and the exploration draw both read: the
+//! grasp region (the goal mask less its rim) and the push region (the valid push starts,
+//! narrowed by the goal guard, the push reach and the landing guard in that order).
+
+use sim::{Heightmaps, ObjectId, ROTATIONS};
+
+use crate::config::PolicyConfig;
+use crate::goal_guard::pushes_keeping_goal;
+use crate::push_landing::pushes_landing_clear;
+use crate::push_reach::pushes_near_goal;
+
+/// A push may only start where the surface is lower than this (metres): "pushes may not
+/// start on top of an object during training". Every block rests at least 2.5 cm tall, so
+/// only the sloped or rounded fringe of an object can be lower.
+pub const PUSH_START_MAX_HEIGHT: f32 = 0.01;
+
+/// Where a grasp may go and where the goal's grasp Q is read: the goal mask less its rim
+/// `margin` metres wide (its deepest pixels where the rim would take all of it); if the goal
+/// is hidden, every object pixel (so the policy can uncover it by grasping what lies on
+/// top); if the table is bare, everywhere. Row-major, `side * side`.
+pub fn grasp_region(obs: &Heightmaps, goal: ObjectId, margin: f32) -> Vec<bool> {
+    let mask = obs.goal_mask(goal);
+    if mask.contains(&true) {
+        let rim = (margin / obs.grid.pixel_size()).round() as u32;
+        return without_rim(&mask, obs.side(), rim);
+    }
+    let objects: Vec<bool> = obs.ids.iter().map(|&id| id != 0).collect();
+    if objects.contains(&true) {
+        return objects;
+    }
+    vec![true; obs.ids.len()]
+}
+
+/// The pixels of `mask` more than `rim` steps (in any of 8 directions) from a pixel outside
+/// it or from the map's border; where there are none, its deepest pixels.
+fn without_rim(mask: &[bool], side: usize, rim: u32) -> Vec<bool> {
+    if rim == 0 {
+        return mask.to_vec();
+    }
+    let depth = chessboard_depth(mask, side);
+    let keep = (rim + 1).min(depth.iter().copied().max().unwrap_or(0));
+    depth.iter().map(|&d| d > 0 && d >= keep).collect()
+}
+
+/// Each pixel's chessboard distance to the nearest pixel outside `mask` (the map's border
+/// counts as outside): 0 outside, 1 on the rim. Two raster passes.
+fn chessboard_depth(mask: &[bool], side: usize) -> Vec<u32> {
+    let mut depth: Vec<u32> = mask.iter().map(|&m| if m { u32::MAX } else { 0 }).collect();
+    let at = |depth: &[u32], r: isize, c: isize| -> u32 {
+        if r < 0 || c < 0 || r >= side as isize || c >= side as isize {
+            0
+        } else {
+            depth[r as usize * side + c as usize]
+        }
+    };
+    let mut pass = |order: &mut dyn Iterator<Item = usize>, neighbours: [(isize, isize); 4]| {
+        for i in order {
+            if depth[i] == 0 {
+                continue;
+            }
+            let (r, c) = ((i / side) as isize, (i % side) as isize);
+            let nearest = neighbours
+                .iter()
+                .map(|&(dr, dc)| at(&depth, r + dr, c + dc))
+                .min()
+                .expect("four neighbours");
+            depth[i] = depth[i].min(nearest.saturating_add(1));
+        }
+    };
+    pass(&mut (0..mask.len()), [(-1, -1), (-1, 0), (-1, 1), (0, -1)]);
+    pass(
+        &mut (0..mask.len()).rev(),
+        [(1, 1), (1, 0), (1, -1), (0, 1)],
+    );
+    depth
+}
+
+/// Where a push may start: pixels lower than [`PUSH_START_MAX_HEIGHT`], i.e. not on top of
+/// an object; everywhere if the objects cover every pixel. Row-major, `side * side`.
+pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
+    let starts: Vec<bool> = obs
+        .height
+        .iter()
+        .map(|&h| h < PUSH_START_MAX_HEIGHT)
+        .collect();
+    if starts.contains(&true) {
+        starts
+    } else {
+        vec![true; starts.len()]
+    }
+}
+
+/// Where a push may go, laid out as [`QMaps::best_where`](crate::QMaps::best_where) reads it: the
+/// [`valid_push_starts`] for every rotation; under the config's `goal_guard`, per rotation,
+/// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]); under its
+/// `push_reach`, of those, the ones that pass near the goal ([`pushes_near_goal`]); under
+/// its `landing_guard`, of those, the ones whose jaws come down clear of every object
+/// ([`pushes_landing_clear`]). A mask that would leave no push is not applied, nor any
+/// after it: the landing guard comes last so that, where it would close every push near a
+/// goal packed in on all sides, the pushes that reach the goal stay open rather than
+/// pushes in the air, which change nothing.
+pub fn push_region(
+    obs: &Heightmaps,
+    goal: ObjectId,
+    config: &PolicyConfig,
+    push_length: f32,
+) -> Vec<bool> {
+    let starts = valid_push_starts(obs);
+    let masks: Vec<Vec<bool>> = [
+        config
+            .goal_guard
+            .map(|margin| pushes_keeping_goal(obs, goal, push_length, margin)),
+        config
+            .push_reach
+            .map(|reach| pushes_near_goal(obs, goal, push_length, reach)),
+        config
+            .landing_guard
+            .map(|margin| pushes_landing_clear(obs, margin)),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    if masks.is_empty() {
+        return starts;
+    }
+    let mut region = starts.repeat(ROTATIONS as usize);
+    for mask in masks {
+        let narrowed: Vec<bool> = region.iter().zip(&mask).map(|(&r, &m)| r && m).collect();
+        if !narrowed.contains(&true) {
+            break;
+        }
+        region = narrowed;
+    }
+    region
+}
