@@ -148,6 +148,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "policy.free_border=0.25",
             "--set",
             "policy.landing_guard=0.004",
+            "--set",
+            "policy.grasp_landing_guard=0.002",
             "--avoid-failed-grasps",
             "--grasp-after-idle-push",
         ],
@@ -160,6 +162,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["guarded_push_descent"].as_bool(),
             margined["free_border"].as_f64(),
             margined["landing_guard"].as_f64(),
+            margined["grasp_landing_guard"].as_f64(),
             margined["avoid_failed_grasps"].as_bool(),
             margined["grasp_after_idle_push"].as_bool()
         ),
@@ -170,6 +173,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             Some(true),
             Some(0.25),
             Some(0.004),
+            Some(0.002),
             Some(true),
             Some(true)
         )

@@ -184,6 +184,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         grasp_margin: agent.policy.grasp_margin,
         goal_guard: agent.policy.goal_guard,
         landing_guard: agent.policy.landing_guard,
+        grasp_landing_guard: agent.policy.grasp_landing_guard,
         avoid_failed_grasps: eval.avoid_failed_grasps,
         grasp_after_idle_push: eval.grasp_after_idle_push,
         push_reach: agent.policy.push_reach,

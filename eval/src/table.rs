@@ -35,6 +35,9 @@ pub(crate) struct EvalReport {
     pub(crate) goal_guard: Option<f32>,
     /// `[policy] landing_guard`, metres, where pushes landing on an object were not chosen.
     pub(crate) landing_guard: Option<f32>,
+    /// `[policy] grasp_landing_guard`, metres, where grasps landing on an object were not
+    /// chosen.
+    pub(crate) grasp_landing_guard: Option<f32>,
     /// `--avoid-failed-grasps`: no grasp that picked nothing since the last push made again.
     pub(crate) avoid_failed_grasps: bool,
     /// `--grasp-after-idle-push`: a grasp next after a push that moved nothing.
@@ -60,7 +63,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -85,6 +88,15 @@ pub(crate) fn print_table(report: &EvalReport) {
         report
             .landing_guard
             .map(|margin| format!(", jaws landing clear of objects by {} mm", 1000.0 * margin))
+            .unwrap_or_default(),
+        report
+            .grasp_landing_guard
+            .map(|margin| {
+                format!(
+                    ", grasps' open jaws landing clear of objects by {} mm",
+                    1000.0 * margin
+                )
+            })
             .unwrap_or_default(),
         if report.avoid_failed_grasps {
             ", no failed grasp repeated"

@@ -44,6 +44,11 @@ pub struct PolicyConfig {
     /// simulator squeezes what they land on until the fingers throw it. `None`: every push
     /// start is open, as in the paper.
     pub landing_guard: Option<f32>,
+    /// Grasps whose open jaws, widened by this margin (metres), would come down on an
+    /// object, the goal's top included, are not chosen ([`crate::grasps_landing_clear`]),
+    /// where any grasp of the goal is left: held up on it, the jaws close above the goal.
+    /// `None`: every grasp is open, as in the paper.
+    pub grasp_landing_guard: Option<f32>,
     /// Pushes whose swept band passes farther than this (metres) from the goal are neither
     /// chosen nor drawn when exploring ([`crate::pushes_near_goal`]): they cannot change
     /// the goal's surroundings. `None`: every push start is open, as in the paper.
@@ -84,6 +89,7 @@ impl Default for PolicyConfig {
             crowded_border: 0.3,
             goal_guard: None,
             landing_guard: None,
+            grasp_landing_guard: None,
             push_reach: None,
             free_border: None,
         }
@@ -101,6 +107,9 @@ impl PolicyConfig {
         }
         if let Some(margin) = self.landing_guard {
             ConfigError::check_range("landing_guard", margin, 0.0..)?;
+        }
+        if let Some(margin) = self.grasp_landing_guard {
+            ConfigError::check_range("grasp_landing_guard", margin, 0.0..)?;
         }
         if let Some(reach) = self.push_reach {
             ConfigError::check_range("push_reach", reach, 0.0..)?;

@@ -11,9 +11,9 @@ pub mod config;
 pub mod error;
 pub mod goal_guard;
 pub mod grasp_repeats;
+pub mod jaws_landing;
 pub mod label;
 pub mod policy;
-pub mod push_landing;
 pub mod push_reach;
 pub mod push_sweep;
 pub mod qmaps;
@@ -24,10 +24,12 @@ pub use config::{PolicyConfig, Rule};
 pub use error::PolicyError;
 pub use goal_guard::pushes_keeping_goal;
 pub use grasp_repeats::{REPEAT_RADIUS, grasps_not_repeating};
+pub use jaws_landing::{grasps_landing_clear, pushes_landing_clear};
 pub use label::{grasp_label, push_label};
 pub use policy::{Decision, Mode, PolicyInput, Reason, choose, trial_grasps};
-pub use push_landing::pushes_landing_clear;
 pub use push_reach::pushes_near_goal;
 pub use qmaps::QMaps;
-pub use regions::{PUSH_START_MAX_HEIGHT, grasp_region, push_region, valid_push_starts};
+pub use regions::{
+    PUSH_START_MAX_HEIGHT, grasp_choices, grasp_region, push_region, valid_push_starts,
+};
 pub use reward::{GRASP_REWARD, PUSH_REWARD, PushReward, Q_IMPROVEMENT, grasp_reward, push_reward};

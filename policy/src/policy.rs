@@ -14,9 +14,8 @@ use sim::{Action, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::config::{PolicyConfig, Rule};
 use crate::error::PolicyError;
-use crate::grasp_repeats::grasps_not_repeating;
 use crate::qmaps::QMaps;
-use crate::regions::{grasp_region, push_region};
+use crate::regions::{grasp_choices, grasp_region, push_region};
 
 /// Which primitives the policy may use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -114,7 +113,7 @@ impl Decision {
 /// there are no push maps; otherwise the config's [`Rule`] decides (the paper's: grasp when
 /// the goal's grasp Q exceeds Q*, else push; under `free_border`, also grasp when the goal's
 /// border ring is free). The primitive goes to the argmax of its Q maps
-/// over its allowed pixels ([`grasp_region`], [`push_region`]) and all rotations, or,
+/// over its allowed pixels ([`grasp_choices`], [`push_region`]) and all rotations, or,
 /// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set.
 /// Deterministic given `rng`.
 ///
@@ -136,11 +135,7 @@ pub fn choose(
         check_shape(Primitive::Push, push, obs)?;
     }
 
-    let region = grasps_not_repeating(
-        grasp_region(obs, input.goal, config.grasp_margin),
-        input.failed_grasps,
-        obs,
-    );
+    let region = grasp_choices(obs, input.goal, config, input.failed_grasps);
     let best_grasp = input
         .grasp
         .best_where(&region)

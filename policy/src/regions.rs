@@ -1,12 +1,14 @@
 //! Where each primitive may act, as masks the argmax and the exploration draw both read: the
-//! grasp region (the goal mask less its rim) and the push region (the valid push starts,
-//! narrowed by the goal guard, the push reach and the landing guard in that order).
+//! grasp region (the goal mask less its rim), narrowed to the grasps the policy may choose
+//! (no failed grasp again, the grasp landing guard), and the push region (the valid push
+//! starts, narrowed by the goal guard, the push reach and the landing guard in that order).
 
-use sim::{Heightmaps, ObjectId, ROTATIONS};
+use sim::{Action, Heightmaps, ObjectId, ROTATIONS};
 
 use crate::config::PolicyConfig;
 use crate::goal_guard::pushes_keeping_goal;
-use crate::push_landing::pushes_landing_clear;
+use crate::grasp_repeats::grasps_not_repeating;
+use crate::jaws_landing::{grasps_landing_clear, pushes_landing_clear};
 use crate::push_reach::pushes_near_goal;
 
 /// A push may only start where the surface is lower than this (metres): "pushes may not
@@ -29,6 +31,35 @@ pub fn grasp_region(obs: &Heightmaps, goal: ObjectId, margin: f32) -> Vec<bool> 
         return objects;
     }
     vec![true; obs.ids.len()]
+}
+
+/// Where a grasp may go, laid out as [`QMaps::best_where`](crate::QMaps::best_where) reads
+/// it: the [`grasp_region`] less the grasps near `failed` ones ([`grasps_not_repeating`]);
+/// under the config's `grasp_landing_guard`, of those, the ones whose open jaws come down
+/// clear of every object ([`grasps_landing_clear`]), unless that would leave none.
+pub fn grasp_choices(
+    obs: &Heightmaps,
+    goal: ObjectId,
+    config: &PolicyConfig,
+    failed: &[Action],
+) -> Vec<bool> {
+    let region = grasps_not_repeating(grasp_region(obs, goal, config.grasp_margin), failed, obs);
+    let Some(margin) = config.grasp_landing_guard else {
+        return region;
+    };
+    let per_rotation = if region.len() == obs.ids.len() {
+        region.repeat(ROTATIONS as usize)
+    } else {
+        region
+    };
+    let clear = grasps_landing_clear(obs, margin);
+    narrowed(&per_rotation, &clear).unwrap_or(per_rotation)
+}
+
+/// `region` and `mask` both, where that leaves something open.
+fn narrowed(region: &[bool], mask: &[bool]) -> Option<Vec<bool>> {
+    let both: Vec<bool> = region.iter().zip(mask).map(|(&r, &m)| r && m).collect();
+    both.contains(&true).then_some(both)
 }
 
 /// The pixels of `mask` more than `rim` steps (in any of 8 directions) from a pixel outside
@@ -125,11 +156,10 @@ pub fn push_region(
     }
     let mut region = starts.repeat(ROTATIONS as usize);
     for mask in masks {
-        let narrowed: Vec<bool> = region.iter().zip(&mask).map(|(&r, &m)| r && m).collect();
-        if !narrowed.contains(&true) {
-            break;
+        match narrowed(&region, &mask) {
+            Some(both) => region = both,
+            None => break,
         }
-        region = narrowed;
     }
     region
 }

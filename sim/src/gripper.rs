@@ -43,10 +43,10 @@ const CLOSED_GAP: f32 = 0.0015;
 /// joint (`robot.py`, `close_gripper`): a gap below 0.04693 - 0.045 m is closed on nothing.
 pub(crate) const JAWS_CLOSED_GAP: f32 = 0.04693 - 0.045;
 
-/// One of the closed jaws' lower parts seen from above, in the tool frame: its extent along
-/// the closing axis (x, the direction a push moves in) and across it (y), and how far its
-/// lower face is above the pads' ends. Where a push's descent lands, what lies under a part
-/// higher than its lower face is pressed into the table.
+/// One of the jaws' lower parts seen from above, in the tool frame, at a limit of the jaws:
+/// its extent along the closing axis (x, the direction a push moves in) and across it (y),
+/// and how far its lower face is above the pads' ends. Where a push's or a grasp's descent
+/// lands, what lies under a part higher than its lower face is pressed into the table.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct JawsPart {
     pub along: [f32; 2],
@@ -54,11 +54,12 @@ pub struct JawsPart {
     pub above_pad_ends: f32,
 }
 
-/// Both fingers' parts (pads, their backing and the knuckles) with the jaws closed, as a
-/// push carries them: 41 mm along the closing axis at the knuckles, 20 mm across.
-pub fn closed_jaws_parts() -> Vec<JawsPart> {
-    let shift = link_end(LINK0_PIVOT, link_angle(Jaws::Closed.gap())) - stored_origin();
-    let pad_ends = pad_end_height(Jaws::Closed);
+/// Both fingers' parts (pads, their backing and the knuckles) with the jaws at `jaws`: closed
+/// as a push carries them (41 mm along the closing axis at the knuckles, 20 mm across), open
+/// as a grasp comes down.
+pub fn jaws_parts(jaws: Jaws) -> Vec<JawsPart> {
+    let shift = link_end(LINK0_PIVOT, link_angle(jaws.gap())) - stored_origin();
+    let pad_ends = pad_end_height(jaws);
     [1.0f32, -1.0]
         .into_iter()
         .flat_map(|side| {
@@ -155,7 +156,7 @@ const PARK_HEIGHT: f32 = 1.0;
 
 /// Where the jaw motor drives the fingers: to the joint's open or closed limit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Jaws {
+pub enum Jaws {
     Open,
     Closed,
 }

@@ -27,11 +27,11 @@ pub use camera::{Camera, Heightmaps};
 pub use catalogue::{SLOT_COLOURS, ShapeKind};
 pub use config::SimConfig;
 pub use error::{ArrangementError, ConfigError, SimError, above};
-pub use gripper::{JawsPart, closed_jaws_parts};
+pub use gripper::{Jaws, JawsPart, jaws_parts};
 pub use mask_shape::MaskShape;
 pub use primitives::{
-    Action, ActionOutcome, Primitive, ROTATIONS, nearest_rotation, push_pad_ends_height,
-    rotation_angle,
+    Action, ActionOutcome, Primitive, ROTATIONS, grasp_pad_ends_height, nearest_rotation,
+    push_pad_ends_height, rotation_angle,
 };
 pub use rapier3d;
 pub use scene::{Rows, SceneReport};

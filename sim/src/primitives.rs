@@ -119,6 +119,19 @@ pub fn push_pad_ends_height(observation: &Heightmaps, row: usize, col: usize) ->
     (surface + PUSH_TOOL_ABOVE_SURFACE + pad_end_height(Jaws::Closed)).max(0.0)
 }
 
+/// Where a grasp at pixel (`row`, `col`) lowers the tool point: [`GRASP_DEPTH`] below the
+/// surface there, but no lower than [`GRASP_MIN_HEIGHT`].
+fn grasp_tool_height(observation: &Heightmaps, row: usize, col: usize) -> f32 {
+    let surface = observation.height[observation.index(row, col)];
+    (surface - GRASP_DEPTH).max(GRASP_MIN_HEIGHT)
+}
+
+/// How high above the table a grasp at pixel (`row`, `col`) lowers the open pads' ends: at
+/// the bottom of its descent, before the jaws close and sweep them down.
+pub fn grasp_pad_ends_height(observation: &Heightmaps, row: usize, col: usize) -> f32 {
+    grasp_tool_height(observation, row, col) + pad_end_height(Jaws::Open)
+}
+
 impl Tabletop {
     /// Executes an action chosen on `observation`, which must be a rendering of this scene on
     /// this tabletop's grid (the heights at the pixel set the working height, as the
@@ -191,8 +204,7 @@ impl Tabletop {
     fn grasp(&mut self, action: &Action, observation: &Heightmaps) -> ActionOutcome {
         let grid = self.grid();
         let [x, y] = grid.pixel_centre(action.row, action.col);
-        let surface = observation.height[observation.index(action.row, action.col)];
-        let z = (surface - GRASP_DEPTH).max(GRASP_MIN_HEIGHT);
+        let z = grasp_tool_height(observation, action.row, action.col);
         let rotation = Rotation::from_rotation_z(action.angle());
         let above = Vector::new(x, y, z + GRASP_APPROACH_HEIGHT);
         self.gripper.place(

@@ -191,7 +191,7 @@ fn a_push_coming_down_on_an_object_stops_there_and_does_not_fling_it() {
 
 #[test]
 fn the_closed_jaws_are_41_mm_along_the_push_and_20_mm_across_their_pads_lowest() {
-    let parts = sim::closed_jaws_parts();
+    let parts = sim::jaws_parts(sim::Jaws::Closed);
     let extent = |f: fn(&sim::JawsPart) -> [f32; 2]| {
         parts.iter().fold([f32::MAX, f32::MIN], |[lo, hi], p| {
             [lo.min(f(p)[0]), hi.max(f(p)[1])]

@@ -1,30 +1,53 @@
-//! Pushes whose closed jaws would come down on an object. A push lowers its tool at the start
-//! to just below the highest point of a 2 cm window there, but the closed jaws are wider
-//! than that window (41 mm along the push at the knuckles): beside it they can come down on
-//! an object, which the simulator, driving them on down, squeezes into the table until the
-//! fingers give way and throw it, and its neighbours, at 1-2 m/s. A real arm would stop on
-//! the contact. Judged from the heightmap, as a robot could judge it: a start is closed where
-//! a pixel under one of the jaws' parts ([`sim::closed_jaws_parts`], widened by a margin
-//! for what the pixels miss of an object's sloping sides) stands higher than that part's
-//! lower face, the pads' ends being where the push lowers them
-//! ([`sim::push_pad_ends_height`]).
+//! Pushes and grasps whose jaws would come down on an object. A push lowers its closed jaws
+//! at the start to just below the highest point of a 2 cm window there, but the jaws are
+//! wider than that window (41 mm along the push at the knuckles): beside it they can come
+//! down on an object, which the simulator, driving them on down, squeezes into the table
+//! until the fingers give way and throw it, and its neighbours, at 1-2 m/s. A real arm would
+//! stop on the contact. A grasp lowers its open jaws (pads 100 mm apart) until the tool point
+//! is 4 cm below the surface at its pixel, the pads' ends 15.5 mm above it: a pad can come
+//! down on a neighbour's top, which holds the jaws up, so that they close above the goal and
+//! pick nothing. Judged from the heightmap, as a robot could judge it: an action is closed
+//! where a pixel under one of the jaws' parts ([`sim::jaws_parts`], widened by a margin for
+//! what the pixels miss of an object's sloping sides) stands higher than that part's lower
+//! face, the pads' ends being where the primitive lowers them
+//! ([`sim::push_pad_ends_height`], [`sim::grasp_pad_ends_height`]).
 
-use sim::{Heightmaps, ROTATIONS, closed_jaws_parts, push_pad_ends_height};
+use sim::{
+    Heightmaps, Jaws, JawsPart, ROTATIONS, grasp_pad_ends_height, jaws_parts, push_pad_ends_height,
+};
 
-/// A surface within this of a part's lower face is not pressed: bare table under the pads'
-/// ends, which come down onto it.
+/// A surface within this of a part's lower face is not pressed: bare table under a push's
+/// pads' ends, which come down onto it.
 const PRESS_TOLERANCE: f32 = 0.001;
 
 /// For each rotation and start pixel, laid out [rotation][row][col] as
 /// [`QMaps`](crate::QMaps): whether a push from there lowers the closed jaws, widened by
 /// `margin` metres on every side, onto nothing higher than their parts' lower faces.
 pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
+    landing_clear(obs, Jaws::Closed, push_pad_ends_height, margin)
+}
+
+/// For each rotation and pixel, laid out as [`pushes_landing_clear`]: whether a grasp there
+/// lowers the open jaws, widened by `margin` metres on every side, onto nothing higher than
+/// their parts' lower faces.
+pub fn grasps_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
+    landing_clear(obs, Jaws::Open, grasp_pad_ends_height, margin)
+}
+
+/// Whether the jaws at `jaws`, their pads' ends lowered to `pad_ends(obs, row, col)` over
+/// each pixel, come down clear, per rotation.
+fn landing_clear(
+    obs: &Heightmaps,
+    jaws: Jaws,
+    pad_ends: fn(&Heightmaps, usize, usize) -> f32,
+    margin: f32,
+) -> Vec<bool> {
     let side = obs.side();
     let pad_ends: Vec<f32> = (0..side * side)
-        .map(|i| push_pad_ends_height(obs, i / side, i % side))
+        .map(|i| pad_ends(obs, i / side, i % side))
         .collect();
     let mut clear = Vec::with_capacity(ROTATIONS as usize * side * side);
-    for footprint in footprints(obs.grid.pixel_size(), margin) {
+    for footprint in footprints(&jaws_parts(jaws), obs.grid.pixel_size(), margin) {
         clear.extend((0..side * side).map(|start| {
             let (row, col) = ((start / side) as isize, (start % side) as isize);
             !footprint.iter().any(|under| {
@@ -40,7 +63,7 @@ pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
     clear
 }
 
-/// A pixel under the closed jaws, relative to the push's start pixel: its (column, row)
+/// A pixel under the jaws, relative to the action's pixel: its (column, row)
 /// offset, and the lowest lower face above it of the parts it lies under, above the pads'
 /// ends.
 struct UnderJaws {
@@ -48,11 +71,10 @@ struct UnderJaws {
     above_pad_ends: f32,
 }
 
-/// For each rotation, the pixels (of `pixel_size` metres) whose centres lie under a part of
-/// the closed jaws widened by `margin` and half a pixel: a pixel counts where any of it is.
-fn footprints(pixel_size: f32, margin: f32) -> Vec<Vec<UnderJaws>> {
+/// For each rotation, the pixels (of `pixel_size` metres) whose centres lie under one of
+/// `parts` widened by `margin` and half a pixel: a pixel counts where any of it is.
+fn footprints(parts: &[JawsPart], pixel_size: f32, margin: f32) -> Vec<Vec<UnderJaws>> {
     let widen = margin + 0.5 * pixel_size;
-    let parts = closed_jaws_parts();
     let far = |[a, b]: [f32; 2]| a.abs().max(b.abs()) + widen;
     let reach = parts
         .iter()

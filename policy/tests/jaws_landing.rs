@@ -1,19 +1,26 @@
-//! The landing guard against the physics it predicts: a push whose closed jaws come down on
-//! an object is closed, and in the simulator such a push does throw the object; one that
+//! The landing guards against the physics they predict: a push whose closed jaws come down
+//! on an object is closed, and in the simulator such a push does throw the object; one that
 //! comes down clear of it is open; the policy under the guard passes over a closed push
 //! however high its Q; where the guard would close every push near the goal, those stay
-//! open rather than the pushes in the air.
+//! open rather than the pushes in the air. A grasp whose open pads would come down on a
+//! neighbour's top is closed, and in the simulator it picks nothing; turned a quarter it is
+//! open and picks the goal; the policy under the grasp guard passes over a closed grasp.
 
 mod common;
 mod masks;
 
 use masks::{chosen, cubes, index, push};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
-use sim::{Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop};
+use sim::{
+    Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop,
+};
 
 use policy::{
-    PolicyConfig, push_region, pushes_landing_clear, pushes_near_goal, valid_push_starts,
+    Mode, PolicyConfig, PolicyInput, QMaps, choose, grasp_choices, grasps_landing_clear,
+    push_region, pushes_landing_clear, pushes_near_goal, valid_push_starts,
 };
 
 const GOAL: ObjectId = 1;
@@ -129,4 +136,99 @@ fn where_the_guard_would_close_every_push_near_the_goal_those_pushes_stay_open()
     };
     let starts = valid_push_starts(&obs).repeat(ROTATIONS as usize);
     assert_eq!(region(&reaching_and_guarded), both(&starts, &near));
+}
+
+/// A neighbour cube 10 mm beside the goal cube along x (their centres 60 mm apart).
+const NEIGHBOUR: ObjectId = 2;
+const NEIGHBOUR_AT: f32 = 0.06;
+/// Rotation 4 turns the jaw axis from x to y.
+const JAWS_ALONG_Y: u8 = 4;
+
+/// A grasp at `rotation` at the goal cube's centre (the workspace centre).
+fn grasp_at_goal(obs: &Heightmaps, rotation: u8) -> Action {
+    Action {
+        primitive: Primitive::Grasp,
+        ..push(obs, rotation, 0.0, 0.0)
+    }
+}
+
+#[test]
+fn open_jaws_coming_down_on_a_neighbour_close_the_grasp_and_turned_clear_of_it_leave_it_open() {
+    let (_, obs, _) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
+    let clear = grasps_landing_clear(&obs, 0.0);
+    // The open pads stand 50 mm either side of the tool point, their ends 35.5 mm above the
+    // table over a 50 mm cube: along x one comes down on the neighbour's top.
+    assert!(!clear[index(&obs, &grasp_at_goal(&obs, 0))]);
+    assert!(clear[index(&obs, &grasp_at_goal(&obs, JAWS_ALONG_Y))]);
+    // Alone, the goal sits between the pads either way.
+    let (_, alone, _) = cubes(&[(GOAL, 0.0, 0.0)]);
+    let clear = grasps_landing_clear(&alone, 0.0);
+    assert!(clear[index(&alone, &grasp_at_goal(&alone, 0))]);
+    assert!(clear[index(&alone, &grasp_at_goal(&alone, JAWS_ALONG_Y))]);
+}
+
+#[test]
+fn under_the_grasp_guard_the_policy_passes_over_a_closed_grasp() {
+    let (_, obs, config) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
+    let closed = grasp_at_goal(&obs, 0);
+    // Every grasp of the goal is above Q*, the closed one highest.
+    let mut grasp_q = vec![2.0; ROTATIONS as usize * obs.side() * obs.side()];
+    grasp_q[index(&obs, &closed)] = 5.0;
+    let grasp = QMaps::new(ROTATIONS, obs.side(), grasp_q).unwrap();
+    let chosen = |policy: &PolicyConfig| {
+        let input = PolicyInput {
+            obs: &obs,
+            goal: GOAL,
+            grasp: &grasp,
+            push: None,
+            pushes_so_far: 0,
+            push_length: config.push_length,
+            failed_grasps: &[],
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        choose(policy, Mode::PushGrasp, &input, 0.0, &mut rng).unwrap()
+    };
+    assert_eq!(chosen(&PolicyConfig::default()).action, closed);
+    let guarded = PolicyConfig {
+        grasp_landing_guard: Some(0.0),
+        ..PolicyConfig::default()
+    };
+    let decision = chosen(&guarded);
+    assert_eq!(decision.action.primitive, Primitive::Grasp);
+    assert_ne!(decision.action, closed);
+    assert_eq!(decision.goal_grasp_q, 2.0, "read over the open grasps only");
+    let region = grasp_choices(&obs, GOAL, &guarded, &[]);
+    assert!(region[index(&obs, &decision.action)]);
+    assert!(!region[index(&obs, &closed)]);
+}
+
+#[test]
+fn where_the_grasp_guard_would_close_every_grasp_of_the_goal_they_stay_open() {
+    let (_, obs, _) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
+    // A margin this wide lands the jaws on something wherever they come down.
+    let guarded = PolicyConfig {
+        grasp_landing_guard: Some(0.2),
+        ..PolicyConfig::default()
+    };
+    let unguarded = grasp_choices(&obs, GOAL, &PolicyConfig::default(), &[]);
+    assert_eq!(
+        grasp_choices(&obs, GOAL, &guarded, &[]),
+        unguarded.repeat(ROTATIONS as usize)
+    );
+}
+
+#[test]
+fn a_grasp_the_guard_closes_does_pick_nothing_and_the_one_it_leaves_open_picks_the_goal() {
+    for (rotation, closed) in [(0, true), (JAWS_ALONG_Y, false)] {
+        let (mut tabletop, obs, _) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
+        let grasp = grasp_at_goal(&obs, rotation);
+        assert_eq!(
+            grasps_landing_clear(&obs, 0.0)[index(&obs, &grasp)],
+            !closed
+        );
+        let outcome = tabletop.act(&grasp, &obs).unwrap();
+        // Held up on the neighbour's top, the pads close above the goal.
+        let want = if closed { None } else { Some(GOAL) };
+        assert_eq!(outcome.grasped, want, "rotation {rotation}");
+    }
 }
