@@ -150,6 +150,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "policy.landing_guard=0.004",
             "--set",
             "policy.grasp_landing_guard=0.002",
+            "--set",
+            "policy.squeeze_guard=0.5",
             "--avoid-failed-grasps",
             "--grasp-after-idle-push",
         ],
@@ -163,6 +165,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["free_border"].as_f64(),
             margined["landing_guard"].as_f64(),
             margined["grasp_landing_guard"].as_f64(),
+            margined["squeeze_guard"].as_f64(),
             margined["avoid_failed_grasps"].as_bool(),
             margined["grasp_after_idle_push"].as_bool()
         ),
@@ -174,6 +177,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             Some(0.25),
             Some(0.004),
             Some(0.002),
+            Some(0.5),
             Some(true),
             Some(true)
         )

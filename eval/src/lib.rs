@@ -185,6 +185,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         goal_guard: agent.policy.goal_guard,
         landing_guard: agent.policy.landing_guard,
         grasp_landing_guard: agent.policy.grasp_landing_guard,
+        squeeze_guard: agent.policy.squeeze_guard,
         avoid_failed_grasps: eval.avoid_failed_grasps,
         grasp_after_idle_push: eval.grasp_after_idle_push,
         push_reach: agent.policy.push_reach,

@@ -38,6 +38,9 @@ pub(crate) struct EvalReport {
     /// `[policy] grasp_landing_guard`, metres, where grasps landing on an object were not
     /// chosen.
     pub(crate) grasp_landing_guard: Option<f32>,
+    /// `[policy] squeeze_guard`, the pads' friction, where grasps squeezing the goal out of
+    /// the jaws were not chosen.
+    pub(crate) squeeze_guard: Option<f32>,
     /// `--avoid-failed-grasps`: no grasp that picked nothing since the last push made again.
     pub(crate) avoid_failed_grasps: bool,
     /// `--grasp-after-idle-push`: a grasp next after a push that moved nothing.
@@ -63,7 +66,7 @@ pub(crate) struct EvalReport {
 
 pub(crate) fn print_table(report: &EvalReport) {
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -97,6 +100,10 @@ pub(crate) fn print_table(report: &EvalReport) {
                     1000.0 * margin
                 )
             })
+            .unwrap_or_default(),
+        report
+            .squeeze_guard
+            .map(|friction| format!(", no grasp squeezing the goal out at friction {friction}"))
             .unwrap_or_default(),
         if report.avoid_failed_grasps {
             ", no failed grasp repeated"

@@ -49,6 +49,12 @@ pub struct PolicyConfig {
     /// where any grasp of the goal is left: held up on it, the jaws close above the goal.
     /// `None`: every grasp is open, as in the paper.
     pub grasp_landing_guard: Option<f32>,
+    /// Grasps whose pads would close on faces of the goal sloping the same way, more
+    /// steeply together than twice this friction coefficient holds, are not chosen
+    /// ([`crate::grasps_holding_goal`]), where any grasp of the goal is left: the goal
+    /// shoots out of the jaws. The pads' friction with an object is 0.355 (0.5 times 0.71,
+    /// as Bullet combines them). `None`: every grasp is open, as in the paper.
+    pub squeeze_guard: Option<f32>,
     /// Pushes whose swept band passes farther than this (metres) from the goal are neither
     /// chosen nor drawn when exploring ([`crate::pushes_near_goal`]): they cannot change
     /// the goal's surroundings. `None`: every push start is open, as in the paper.
@@ -90,6 +96,7 @@ impl Default for PolicyConfig {
             goal_guard: None,
             landing_guard: None,
             grasp_landing_guard: None,
+            squeeze_guard: None,
             push_reach: None,
             free_border: None,
         }
@@ -110,6 +117,9 @@ impl PolicyConfig {
         }
         if let Some(margin) = self.grasp_landing_guard {
             ConfigError::check_range("grasp_landing_guard", margin, 0.0..)?;
+        }
+        if let Some(friction) = self.squeeze_guard {
+            ConfigError::check_range("squeeze_guard", friction, 0.0..)?;
         }
         if let Some(reach) = self.push_reach {
             ConfigError::check_range("push_reach", reach, 0.0..)?;

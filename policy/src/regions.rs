@@ -1,6 +1,6 @@
 //! Where each primitive may act, as masks the argmax and the exploration draw both read: the
 //! grasp region (the goal mask less its rim), narrowed to the grasps the policy may choose
-//! (no failed grasp again, the grasp landing guard), and the push region (the valid push
+//! (no failed grasp again, the grasp landing guard, the squeeze guard), and the push region (the valid push
 //! starts, narrowed by the goal guard, the push reach and the landing guard in that order).
 
 use sim::{Action, Heightmaps, ObjectId, ROTATIONS};
@@ -8,6 +8,7 @@ use sim::{Action, Heightmaps, ObjectId, ROTATIONS};
 use crate::config::PolicyConfig;
 use crate::goal_guard::pushes_keeping_goal;
 use crate::grasp_repeats::grasps_not_repeating;
+use crate::grasp_squeeze::grasps_holding_goal;
 use crate::jaws_landing::{grasps_landing_clear, pushes_landing_clear};
 use crate::push_reach::pushes_near_goal;
 
@@ -36,7 +37,9 @@ pub fn grasp_region(obs: &Heightmaps, goal: ObjectId, margin: f32) -> Vec<bool> 
 /// Where a grasp may go, laid out as [`QMaps::best_where`](crate::QMaps::best_where) reads
 /// it: the [`grasp_region`] less the grasps near `failed` ones ([`grasps_not_repeating`]);
 /// under the config's `grasp_landing_guard`, of those, the ones whose open jaws come down
-/// clear of every object ([`grasps_landing_clear`]), unless that would leave none.
+/// clear of every object ([`grasps_landing_clear`]); under its `squeeze_guard`, of those,
+/// the ones that do not squeeze the goal out of the jaws ([`grasps_holding_goal`]). A mask
+/// that would leave no grasp is not applied, nor any after it.
 pub fn grasp_choices(
     obs: &Heightmaps,
     goal: ObjectId,
@@ -44,16 +47,37 @@ pub fn grasp_choices(
     failed: &[Action],
 ) -> Vec<bool> {
     let region = grasps_not_repeating(grasp_region(obs, goal, config.grasp_margin), failed, obs);
-    let Some(margin) = config.grasp_landing_guard else {
+    let masks: Vec<Vec<bool>> = [
+        config
+            .grasp_landing_guard
+            .map(|margin| grasps_landing_clear(obs, margin)),
+        config
+            .squeeze_guard
+            .map(|friction| grasps_holding_goal(obs, goal, friction)),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    if masks.is_empty() {
         return region;
-    };
+    }
     let per_rotation = if region.len() == obs.ids.len() {
         region.repeat(ROTATIONS as usize)
     } else {
         region
     };
-    let clear = grasps_landing_clear(obs, margin);
-    narrowed(&per_rotation, &clear).unwrap_or(per_rotation)
+    narrowed_in_turn(per_rotation, masks)
+}
+
+/// `region` narrowed by each of `masks` in turn, until one would leave nothing open.
+fn narrowed_in_turn(mut region: Vec<bool>, masks: Vec<Vec<bool>>) -> Vec<bool> {
+    for mask in masks {
+        match narrowed(&region, &mask) {
+            Some(both) => region = both,
+            None => break,
+        }
+    }
+    region
 }
 
 /// `region` and `mask` both, where that leaves something open.
@@ -154,12 +178,5 @@ pub fn push_region(
     if masks.is_empty() {
         return starts;
     }
-    let mut region = starts.repeat(ROTATIONS as usize);
-    for mask in masks {
-        match narrowed(&region, &mask) {
-            Some(both) => region = both,
-            None => break,
-        }
-    }
-    region
+    narrowed_in_turn(starts.repeat(ROTATIONS as usize), masks)
 }

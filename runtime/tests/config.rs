@@ -148,6 +148,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("policy.goal_guard", "-0.02"),
         ("policy.landing_guard", "-0.004"),
         ("policy.grasp_landing_guard", "-0.004"),
+        ("policy.squeeze_guard", "-0.3"),
         ("policy.push_reach", "-0.04"),
         ("policy.epsilon_start", "3.0"),
         ("policy.epsilon_decay", "1.5"),
