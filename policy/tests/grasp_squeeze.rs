@@ -4,15 +4,16 @@
 //! corners turns into the jaws, and the guard leaves every such grasp open; the policy under
 //! the guard passes over a closed grasp however high its Q.
 
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
+mod grasp_choice;
+
+use grasp_choice::chosen_grasp;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
 use sim::{
     Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop,
 };
 
-use policy::{Mode, PolicyConfig, PolicyInput, QMaps, choose, grasps_holding_goal};
+use policy::{PolicyConfig, grasps_holding_goal};
 
 const GOAL: ObjectId = 1;
 /// The pads' friction with an object: 0.5 times 0.71, as Bullet combines them.
@@ -97,30 +98,14 @@ fn a_cube_grasped_across_its_corners_stays_open_at_every_rotation() {
 fn under_the_squeeze_guard_the_policy_passes_over_a_closed_grasp() {
     let (tabletop, obs) = standing_roof();
     let closed = grasp_at_centre(&tabletop, 0);
-    let mut grasp_q = vec![2.0; ROTATIONS as usize * obs.side() * obs.side()];
-    grasp_q[index(&obs, &closed)] = 5.0;
-    let grasp = QMaps::new(ROTATIONS, obs.side(), grasp_q).unwrap();
-    let chosen = |policy: &PolicyConfig| {
-        let input = PolicyInput {
-            obs: &obs,
-            goal: GOAL,
-            grasp: &grasp,
-            push: None,
-            pushes_so_far: 0,
-            push_length: SimConfig::default().push_length,
-            failed_grasps: &[],
-        };
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        choose(policy, Mode::PushGrasp, &input, 0.0, &mut rng)
-            .unwrap()
-            .action
-    };
-    assert_eq!(chosen(&PolicyConfig::default()), closed);
+    let push_length = SimConfig::default().push_length;
+    let chosen = |policy: &PolicyConfig| chosen_grasp(&obs, GOAL, &closed, policy, push_length);
+    assert_eq!(chosen(&PolicyConfig::default()).action, closed);
     let guarded = PolicyConfig {
         squeeze_guard: Some(FRICTION),
         ..PolicyConfig::default()
     };
-    let action = chosen(&guarded);
+    let action = chosen(&guarded).action;
     assert_eq!(action.primitive, Primitive::Grasp);
     assert!(grasps_holding_goal(&obs, GOAL, FRICTION)[index(&obs, &action)]);
 }

@@ -7,11 +7,11 @@
 //! open and picks the goal; the policy under the grasp guard passes over a closed grasp.
 
 mod common;
+mod grasp_choice;
 mod masks;
 
+use grasp_choice::chosen_grasp;
 use masks::{chosen, cubes, index, push};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
 use sim::{
@@ -19,8 +19,8 @@ use sim::{
 };
 
 use policy::{
-    Mode, PolicyConfig, PolicyInput, QMaps, choose, grasp_choices, grasps_landing_clear,
-    push_region, pushes_landing_clear, pushes_near_goal, valid_push_starts,
+    PolicyConfig, grasp_choices, grasps_landing_clear, push_region, pushes_landing_clear,
+    pushes_near_goal, valid_push_starts,
 };
 
 const GOAL: ObjectId = 1;
@@ -171,23 +171,8 @@ fn open_jaws_coming_down_on_a_neighbour_close_the_grasp_and_turned_clear_of_it_l
 fn under_the_grasp_guard_the_policy_passes_over_a_closed_grasp() {
     let (_, obs, config) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
     let closed = grasp_at_goal(&obs, 0);
-    // Every grasp of the goal is above Q*, the closed one highest.
-    let mut grasp_q = vec![2.0; ROTATIONS as usize * obs.side() * obs.side()];
-    grasp_q[index(&obs, &closed)] = 5.0;
-    let grasp = QMaps::new(ROTATIONS, obs.side(), grasp_q).unwrap();
-    let chosen = |policy: &PolicyConfig| {
-        let input = PolicyInput {
-            obs: &obs,
-            goal: GOAL,
-            grasp: &grasp,
-            push: None,
-            pushes_so_far: 0,
-            push_length: config.push_length,
-            failed_grasps: &[],
-        };
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        choose(policy, Mode::PushGrasp, &input, 0.0, &mut rng).unwrap()
-    };
+    let chosen =
+        |policy: &PolicyConfig| chosen_grasp(&obs, GOAL, &closed, policy, config.push_length);
     assert_eq!(chosen(&PolicyConfig::default()).action, closed);
     let guarded = PolicyConfig {
         grasp_landing_guard: Some(0.0),
