@@ -27,7 +27,10 @@ pub fn grasps_holding_goal(obs: &Heightmaps, goal: ObjectId, friction: f32) -> V
         .map(|p| p.across[1].max(-p.across[0]))
         .fold(0.0, f32::max);
     let samples = (half_pad / pixel).round() as isize;
-    let inside = |x: f32, y: f32| -> bool {
+    // The reach is walked in half pixels. Positions are x along columns and y along rows,
+    // in pixels, and `on_goal` takes them in metres from pixel (0, 0)'s centre.
+    let steps = (2.0 * REACH / pixel) as usize;
+    let on_goal = |x: f32, y: f32| -> bool {
         let (c, r) = ((x / pixel).round(), (y / pixel).round());
         c >= 0.0
             && r >= 0.0
@@ -40,39 +43,31 @@ pub fn grasps_holding_goal(obs: &Heightmaps, goal: ObjectId, friction: f32) -> V
         let angle = rotation_angle(rotation);
         let (along, across) = ([angle.cos(), angle.sin()], [-angle.sin(), angle.cos()]);
         for start in (0..side * side).filter(|&i| mask[i]) {
-            // Pixel units from here on: x along columns, y along rows.
             let (x0, y0) = ((start % side) as f32, (start / side) as f32);
-            let extent = |sign: f32, offset: isize| -> Option<f32> {
+            // How far (metres) the goal reaches from the jaw line `offset` pixels across,
+            // towards the pad on `sign`'s side; None where the goal is not on that line.
+            let reach = |sign: f32, offset: isize| -> Option<f32> {
                 let (x, y) = (
                     x0 + offset as f32 * across[0],
                     y0 + offset as f32 * across[1],
                 );
-                let steps = (2.0 * REACH / pixel) as usize;
                 let at = |k: usize| {
                     let t = sign * k as f32 * 0.5;
-                    (
+                    on_goal(
                         x * pixel + t * along[0] * pixel,
                         y * pixel + t * along[1] * pixel,
                     )
                 };
-                let (ax, ay) = at(0);
-                if !inside(ax, ay) {
-                    return None;
-                }
-                let last = (1..=steps)
-                    .take_while(|&k| {
-                        let (px, py) = at(k);
-                        inside(px, py)
-                    })
-                    .last()
-                    .unwrap_or(0);
-                Some(last as f32 * 0.5 * pixel)
+                at(0).then(|| {
+                    let last = (1..=steps).take_while(|&k| at(k)).last().unwrap_or(0);
+                    0.5 * last as f32 * pixel
+                })
             };
             let push: f32 = [1.0f32, -1.0]
                 .into_iter()
                 .map(|sign| {
                     let reach: Vec<Option<f32>> =
-                        (-samples..=samples).map(|s| extent(sign, s)).collect();
+                        (-samples..=samples).map(|s| reach(sign, s)).collect();
                     sideways_push(&reach, pixel)
                 })
                 .sum();

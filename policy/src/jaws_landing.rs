@@ -24,31 +24,38 @@ const PRESS_TOLERANCE: f32 = 0.001;
 /// [`QMaps`](crate::QMaps): whether a push from there lowers the closed jaws, widened by
 /// `margin` metres on every side, onto nothing higher than their parts' lower faces.
 pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
-    landing_clear(obs, Jaws::Closed, push_pad_ends_height, margin)
+    landing_clear(obs, Jaws::Closed, push_pad_ends_height, margin, |_| true)
 }
 
 /// For each rotation and pixel, laid out as [`pushes_landing_clear`]: whether a grasp there
 /// lowers the open jaws, widened by `margin` metres on every side, onto nothing higher than
-/// their parts' lower faces.
-pub fn grasps_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
-    landing_clear(obs, Jaws::Open, grasp_pad_ends_height, margin)
+/// their parts' lower faces. Judged only at the pixels `within` holds (one `side * side`
+/// mask, the grasp region: a grasp goes nowhere else); open at the others.
+pub fn grasps_landing_clear(obs: &Heightmaps, margin: f32, within: &[bool]) -> Vec<bool> {
+    landing_clear(obs, Jaws::Open, grasp_pad_ends_height, margin, |i| {
+        within[i]
+    })
 }
 
 /// Whether the jaws at `jaws`, their pads' ends lowered to `pad_ends(obs, row, col)` over
-/// each pixel, come down clear, per rotation.
+/// each pixel `judged` holds, come down clear, per rotation; open where it is not judged.
 fn landing_clear(
     obs: &Heightmaps,
     jaws: Jaws,
     pad_ends: fn(&Heightmaps, usize, usize) -> f32,
     margin: f32,
+    judged: impl Fn(usize) -> bool,
 ) -> Vec<bool> {
     let side = obs.side();
-    let pad_ends: Vec<f32> = (0..side * side)
-        .map(|i| pad_ends(obs, i / side, i % side))
+    let pad_ends: Vec<Option<f32>> = (0..side * side)
+        .map(|i| judged(i).then(|| pad_ends(obs, i / side, i % side)))
         .collect();
     let mut clear = Vec::with_capacity(ROTATIONS as usize * side * side);
     for footprint in footprints(&jaws_parts(jaws), obs.grid.pixel_size(), margin) {
-        clear.extend((0..side * side).map(|start| {
+        clear.extend(pad_ends.iter().enumerate().map(|(start, pad_ends)| {
+            let Some(pad_ends) = pad_ends else {
+                return true;
+            };
             let (row, col) = ((start / side) as isize, (start % side) as isize);
             !footprint.iter().any(|under| {
                 let (r, c) = (row + under.offset[1], col + under.offset[0]);
@@ -56,7 +63,7 @@ fn landing_clear(
                 inside(r)
                     && inside(c)
                     && obs.height[r as usize * side + c as usize]
-                        > pad_ends[start] + under.above_pad_ends + PRESS_TOLERANCE
+                        > pad_ends + under.above_pad_ends + PRESS_TOLERANCE
             })
         }));
     }

@@ -46,11 +46,11 @@ pub fn grasp_choices(
     config: &PolicyConfig,
     failed: &[Action],
 ) -> Vec<bool> {
-    let region = grasps_not_repeating(grasp_region(obs, goal, config.grasp_margin), failed, obs);
+    let within = grasp_region(obs, goal, config.grasp_margin);
     let masks: Vec<Vec<bool>> = [
         config
             .grasp_landing_guard
-            .map(|margin| grasps_landing_clear(obs, margin)),
+            .map(|margin| grasps_landing_clear(obs, margin, &within)),
         config
             .squeeze_guard
             .map(|friction| grasps_holding_goal(obs, goal, friction)),
@@ -58,6 +58,7 @@ pub fn grasp_choices(
     .into_iter()
     .flatten()
     .collect();
+    let region = grasps_not_repeating(within, failed, obs);
     if masks.is_empty() {
         return region;
     }

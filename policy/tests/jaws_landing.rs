@@ -6,12 +6,14 @@
 //! neighbour's top is closed, and in the simulator it picks nothing; turned a quarter it is
 //! open and picks the goal; the policy under the grasp guard passes over a closed grasp.
 
+mod closed_push;
 mod common;
 mod grasp_choice;
 mod masks;
 
+use closed_push::passes_over;
 use grasp_choice::chosen_grasp;
-use masks::{chosen, cubes, index, push};
+use masks::{cubes, index, push};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
 use sim::{
@@ -96,19 +98,11 @@ fn a_push_the_guard_closes_does_throw_the_object_and_one_it_leaves_open_does_not
 fn under_the_guard_the_policy_passes_over_a_closed_push() {
     let (_, obs, config) = cubes(&[(GOAL, 0.0, 0.0)]);
     let closed = push(&obs, TOWARDS_X, -0.035, 0.0);
-    let chosen =
-        |policy: &PolicyConfig| chosen(&obs, GOAL, config.push_length, &closed, policy, 0.0, 0);
-    assert_eq!(chosen(&PolicyConfig::default()), closed);
     let guarded = PolicyConfig {
         landing_guard: Some(0.0),
         ..PolicyConfig::default()
     };
-    let action = chosen(&guarded);
-    assert_eq!(action.primitive, Primitive::Push);
-    assert_ne!(action, closed);
-    let region = push_region(&obs, GOAL, &guarded, config.push_length);
-    assert!(region[index(&obs, &action)]);
-    assert!(!region[index(&obs, &closed)]);
+    passes_over(&obs, GOAL, config.push_length, &closed, &guarded);
 }
 
 #[test]
@@ -144,6 +138,11 @@ const NEIGHBOUR_AT: f32 = 0.06;
 /// Rotation 4 turns the jaw axis from x to y.
 const JAWS_ALONG_Y: u8 = 4;
 
+/// Every pixel, for a guard to judge.
+fn everywhere(obs: &Heightmaps) -> Vec<bool> {
+    vec![true; obs.side() * obs.side()]
+}
+
 /// A grasp at `rotation` at the goal cube's centre (the workspace centre).
 fn grasp_at_goal(obs: &Heightmaps, rotation: u8) -> Action {
     Action {
@@ -155,14 +154,14 @@ fn grasp_at_goal(obs: &Heightmaps, rotation: u8) -> Action {
 #[test]
 fn open_jaws_coming_down_on_a_neighbour_close_the_grasp_and_turned_clear_of_it_leave_it_open() {
     let (_, obs, _) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
-    let clear = grasps_landing_clear(&obs, 0.0);
+    let clear = grasps_landing_clear(&obs, 0.0, &everywhere(&obs));
     // The open pads stand 50 mm either side of the tool point, their ends 35.5 mm above the
     // table over a 50 mm cube: along x one comes down on the neighbour's top.
     assert!(!clear[index(&obs, &grasp_at_goal(&obs, 0))]);
     assert!(clear[index(&obs, &grasp_at_goal(&obs, JAWS_ALONG_Y))]);
     // Alone, the goal sits between the pads either way.
     let (_, alone, _) = cubes(&[(GOAL, 0.0, 0.0)]);
-    let clear = grasps_landing_clear(&alone, 0.0);
+    let clear = grasps_landing_clear(&alone, 0.0, &everywhere(&alone));
     assert!(clear[index(&alone, &grasp_at_goal(&alone, 0))]);
     assert!(clear[index(&alone, &grasp_at_goal(&alone, JAWS_ALONG_Y))]);
 }
@@ -208,7 +207,7 @@ fn a_grasp_the_guard_closes_does_pick_nothing_and_the_one_it_leaves_open_picks_t
         let (mut tabletop, obs, _) = cubes(&[(GOAL, 0.0, 0.0), (NEIGHBOUR, NEIGHBOUR_AT, 0.0)]);
         let grasp = grasp_at_goal(&obs, rotation);
         assert_eq!(
-            grasps_landing_clear(&obs, 0.0)[index(&obs, &grasp)],
+            grasps_landing_clear(&obs, 0.0, &everywhere(&obs))[index(&obs, &grasp)],
             !closed
         );
         let outcome = tabletop.act(&grasp, &obs).unwrap();
