@@ -35,6 +35,9 @@ pub struct Choice {
 /// far, and its own exploration.
 pub struct Situation<'a> {
     pub obs: &'a Heightmaps,
+    /// The scene on the policy's landing view grid, where it names one
+    /// ([`PolicyInput::landing_view`]).
+    pub landing_view: Option<&'a Heightmaps>,
     pub goal: ObjectId,
     pub pushes_so_far: usize,
     /// Grasps not to make again ([`PolicyInput::failed_grasps`]).
@@ -135,6 +138,7 @@ impl Agent {
                     push: push.as_ref(),
                     pushes_so_far: s.pushes_so_far,
                     push_length: self.push_length,
+                    landing_view: s.landing_view,
                     failed_grasps: s.failed_grasps,
                 };
                 let decision =

@@ -224,6 +224,9 @@ fn test_run(
     let mut before_push = None;
     while record.actions.len() < max_actions && !record.outcome().decided {
         let obs = camera.render(&tabletop);
+        let landing_view = (agent.policy)
+            .landing_view(tabletop.grid())
+            .map(|grid| Camera::new(grid).render(&tabletop));
         if let Some(before) = before_push.take()
             && !scene_changed(&before, &obs)
         {
@@ -231,6 +234,7 @@ fn test_run(
         }
         let situation = Situation {
             obs: &obs,
+            landing_view: landing_view.as_ref(),
             goal,
             pushes_so_far: pushes,
             failed_grasps: &failed_grasps,

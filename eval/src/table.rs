@@ -3,7 +3,7 @@
 
 use agent::failures::{FailureReport, QBin};
 use agent::{CaseMetrics, TestLearning};
-use policy::Rule;
+use policy::{PolicyConfig, Rule};
 use serde::Serialize;
 
 /// One case's figures.
@@ -27,28 +27,14 @@ pub(crate) struct EvalReport {
     pub(crate) runs_per_case: usize,
     pub(crate) seed: u64,
     pub(crate) mode: policy::Mode,
-    pub(crate) rule: Rule,
-    pub(crate) q_star: f32,
-    /// `[policy] grasp_margin`, metres.
-    pub(crate) grasp_margin: f32,
-    /// `[policy] goal_guard`, metres, where pushes were guarded.
-    pub(crate) goal_guard: Option<f32>,
-    /// `[policy] landing_guard`, metres, where pushes landing on an object were not chosen.
-    pub(crate) landing_guard: Option<f32>,
-    /// `[policy] grasp_landing_guard`, metres, where grasps landing on an object were not
-    /// chosen.
-    pub(crate) grasp_landing_guard: Option<f32>,
-    /// `[policy] squeeze_guard`, the pads' friction, where grasps squeezing the goal out of
-    /// the jaws were not chosen.
-    pub(crate) squeeze_guard: Option<f32>,
+    /// The policy that acted: its rule, Q* and test-time masks, each at the report's top
+    /// level (its exploration settings are the training's: a test acts greedily).
+    #[serde(flatten)]
+    pub(crate) policy: PolicyConfig,
     /// `--avoid-failed-grasps`: no grasp that picked nothing since the last push made again.
     pub(crate) avoid_failed_grasps: bool,
     /// `--grasp-after-idle-push`: a grasp next after a push that moved nothing.
     pub(crate) grasp_after_idle_push: bool,
-    /// `[policy] push_reach`, metres, where pushes were kept near the goal.
-    pub(crate) push_reach: Option<f32>,
-    /// `[policy] free_border`, where a goal with a free border ring was grasped below Q*.
-    pub(crate) free_border: Option<f32>,
     /// `[sim] guarded_push_descent`.
     pub(crate) guarded_push_descent: bool,
     pub(crate) goal_agnostic: bool,
@@ -65,6 +51,7 @@ pub(crate) struct EvalReport {
 }
 
 pub(crate) fn print_table(report: &EvalReport) {
+    let policy = &report.policy;
     println!(
         "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}{}{}",
         report.checkpoint,
@@ -77,22 +64,31 @@ pub(crate) fn print_table(report: &EvalReport) {
         report.runs_per_case,
         report.seed,
         report.mode,
-        report.rule,
-        report.q_star,
-        if report.grasp_margin > 0.0 {
-            format!(", grasp margin {} mm", 1000.0 * report.grasp_margin)
+        policy.rule,
+        policy.q_star,
+        if policy.grasp_margin > 0.0 {
+            format!(", grasp margin {} mm", 1000.0 * policy.grasp_margin)
         } else {
             String::new()
         },
-        report
+        policy
             .goal_guard
             .map(|margin| format!(", goal guard {} mm", 1000.0 * margin))
             .unwrap_or_default(),
-        report
+        policy
             .landing_guard
-            .map(|margin| format!(", jaws landing clear of objects by {} mm", 1000.0 * margin))
+            .map(|margin| {
+                let seen = match policy.landing_subpixels {
+                    1 => String::new(),
+                    finer => format!(" seen {finer}x finer"),
+                };
+                format!(
+                    ", jaws landing clear of objects by {} mm{seen}",
+                    1000.0 * margin
+                )
+            })
             .unwrap_or_default(),
-        report
+        policy
             .grasp_landing_guard
             .map(|margin| {
                 format!(
@@ -101,7 +97,7 @@ pub(crate) fn print_table(report: &EvalReport) {
                 )
             })
             .unwrap_or_default(),
-        report
+        policy
             .squeeze_guard
             .map(|friction| format!(", no grasp squeezing the goal out at friction {friction}"))
             .unwrap_or_default(),
@@ -115,11 +111,11 @@ pub(crate) fn print_table(report: &EvalReport) {
         } else {
             ""
         },
-        report
+        policy
             .push_reach
             .map(|reach| format!(", pushes within {} mm of the goal", 1000.0 * reach))
             .unwrap_or_default(),
-        report
+        policy
             .free_border
             .map(|free| format!(", grasp at a border ring at most {free} occupied"))
             .unwrap_or_default(),

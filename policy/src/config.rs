@@ -1,11 +1,12 @@
 //! The policy's settings: the paper's Q* rule and its push budget, exploration's rate, and
-//! the test-time masks (grasp margin, goal guard, landing guard, push reach, free border),
-//! each off or at the paper's value by default, each checked on load.
+//! the test-time masks (grasp margin, goal guard, landing guard and its finer view, push
+//! reach, free border, grasp landing guard, squeeze guard), each off or at the paper's value
+//! by default, each checked on load.
 
 use std::ops::Bound;
 
 use serde::{Deserialize, Serialize};
-use sim::ConfigError;
+use sim::{ConfigError, PixelGrid};
 
 /// The policy's settings; the defaults are the paper's.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -44,6 +45,13 @@ pub struct PolicyConfig {
     /// simulator squeezes what they land on until the fingers throw it. `None`: every push
     /// start is open, as in the paper.
     pub landing_guard: Option<f32>,
+    /// The landing guard also closes the pushes whose jaws come down on the goal as seen
+    /// this many times finer than the observation in each direction
+    /// ([`crate::pushes_landing_clear_of`], on [`PolicyConfig::landing_view`]'s grid; odd, so
+    /// that each observation pixel's centre is a fine pixel's): a pixel's height is the
+    /// surface at its centre, and the goal's corner can reach under the jaws in a pixel
+    /// whose centre is on the table. 1: the observation alone.
+    pub landing_subpixels: usize,
     /// Grasps whose open jaws, widened by this margin (metres), would come down on an
     /// object, the goal's top included, are not chosen ([`crate::grasps_landing_clear`]),
     /// where any grasp of the goal is left: held up on it, the jaws close above the goal.
@@ -95,6 +103,7 @@ impl Default for PolicyConfig {
             crowded_border: 0.3,
             goal_guard: None,
             landing_guard: None,
+            landing_subpixels: 1,
             grasp_landing_guard: None,
             squeeze_guard: None,
             push_reach: None,
@@ -115,6 +124,17 @@ impl PolicyConfig {
         if let Some(margin) = self.landing_guard {
             ConfigError::check_range("landing_guard", margin, 0.0..)?;
         }
+        ConfigError::check_range(
+            "landing_subpixels",
+            self.landing_subpixels as f64,
+            1.0..=9.0,
+        )?;
+        if self.landing_subpixels.is_multiple_of(2) {
+            return Err(ConfigError::new(
+                "landing_subpixels",
+                format!("{} is even: it must be odd", self.landing_subpixels),
+            ));
+        }
         if let Some(margin) = self.grasp_landing_guard {
             ConfigError::check_range("grasp_landing_guard", margin, 0.0..)?;
         }
@@ -134,6 +154,15 @@ impl PolicyConfig {
             self.epsilon_decay,
             (Bound::Excluded(0.0), Bound::Included(1.0)),
         )
+    }
+
+    /// The grid a policy on observations of `grid` wants the scene rendered on for its
+    /// landing guard, where that is finer than the observation.
+    pub fn landing_view(&self, grid: PixelGrid) -> Option<PixelGrid> {
+        (self.landing_guard.is_some() && self.landing_subpixels > 1).then(|| {
+            grid.finer(self.landing_subpixels)
+                .expect("a whole number of finer pixels spans the workspace")
+        })
     }
 
     /// The exploration rate after `iteration` actions: max(start * decay^iteration, end), as

@@ -10,10 +10,14 @@
 //! where a pixel under one of the jaws' parts ([`sim::jaws_parts`], widened by a margin for
 //! what the pixels miss of an object's sloping sides) stands higher than that part's lower
 //! face, the pads' ends being where the primitive lowers them
-//! ([`sim::push_pad_ends_height`], [`sim::grasp_pad_ends_height`]).
+//! ([`sim::push_pad_ends_height`], [`sim::grasp_pad_ends_height`]). A pixel's height is the
+//! surface at its centre, so a corner can reach under the jaws in a pixel whose centre is on
+//! the table; the goal, whose loss ends the run, is also judged on the scene rendered finer
+//! ([`pushes_landing_clear_of`]).
 
 use sim::{
-    Heightmaps, Jaws, JawsPart, ROTATIONS, grasp_pad_ends_height, jaws_parts, push_pad_ends_height,
+    Heightmaps, Jaws, JawsPart, ObjectId, ROTATIONS, grasp_pad_ends_height, jaws_parts,
+    push_pad_ends_height,
 };
 
 /// A surface within this of a part's lower face is not pressed: bare table under a push's
@@ -24,7 +28,36 @@ const PRESS_TOLERANCE: f32 = 0.001;
 /// [`QMaps`](crate::QMaps): whether a push from there lowers the closed jaws, widened by
 /// `margin` metres on every side, onto nothing higher than their parts' lower faces.
 pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
-    landing_clear(obs, Jaws::Closed, push_pad_ends_height, margin, |_| true)
+    landing_clear(
+        obs,
+        obs,
+        None,
+        Jaws::Closed,
+        push_pad_ends_height,
+        margin,
+        |_| true,
+    )
+}
+
+/// For each rotation and start pixel, laid out as [`pushes_landing_clear`]: whether a push
+/// from there lowers the closed jaws, widened by `margin` metres on every side, clear of
+/// `goal` as `view` sees it: the scene rendered an odd number of times finer than `obs`
+/// on the same workspace ([`PolicyConfig::landing_view`](crate::PolicyConfig::landing_view)).
+pub fn pushes_landing_clear_of(
+    obs: &Heightmaps,
+    view: &Heightmaps,
+    goal: ObjectId,
+    margin: f32,
+) -> Vec<bool> {
+    landing_clear(
+        obs,
+        view,
+        Some(goal),
+        Jaws::Closed,
+        push_pad_ends_height,
+        margin,
+        |_| true,
+    )
 }
 
 /// For each rotation and pixel, laid out as [`pushes_landing_clear`]: whether a grasp there
@@ -32,42 +65,114 @@ pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {
 /// their parts' lower faces. Judged only at the pixels `within` holds (one `side * side`
 /// mask, the grasp region: a grasp goes nowhere else); open at the others.
 pub fn grasps_landing_clear(obs: &Heightmaps, margin: f32, within: &[bool]) -> Vec<bool> {
-    landing_clear(obs, Jaws::Open, grasp_pad_ends_height, margin, |i| {
-        within[i]
-    })
+    landing_clear(
+        obs,
+        obs,
+        None,
+        Jaws::Open,
+        grasp_pad_ends_height,
+        margin,
+        |i| within[i],
+    )
 }
 
 /// Whether the jaws at `jaws`, their pads' ends lowered to `pad_ends(obs, row, col)` over
-/// each pixel `judged` holds, come down clear, per rotation; open where it is not judged.
+/// each pixel `judged` holds, come down clear of `view`'s surfaces (`only` that object's,
+/// where given), per rotation; open where it is not judged. On a finer view, a start is
+/// judged on the view's pixels only where the coarse test on each observation pixel's
+/// highest view pixel does not already find it clear.
 fn landing_clear(
     obs: &Heightmaps,
+    view: &Heightmaps,
+    only: Option<ObjectId>,
     jaws: Jaws,
     pad_ends: fn(&Heightmaps, usize, usize) -> f32,
     margin: f32,
     judged: impl Fn(usize) -> bool,
 ) -> Vec<bool> {
     let side = obs.side();
+    let factor = view.side() / side;
+    assert!(
+        view.side() == side * factor && !factor.is_multiple_of(2),
+        "a landing view {} pixels a side over observations of {side}",
+        view.side()
+    );
+    let parts = jaws_parts(jaws);
+    let (pixel, fine_pixel) = (obs.grid.pixel_size(), view.grid.pixel_size());
+    // A fine pixel under the jaws lies in an observation pixel whose centre is at most half
+    // its diagonal farther out: the coarse test, so widened, misses nothing the fine one finds.
+    let (coarse, fine) = if factor == 1 {
+        (footprints(&parts, pixel, margin + 0.5 * pixel), Vec::new())
+    } else {
+        let fine_widening = margin + 0.5 * fine_pixel;
+        let coarse_widening = fine_widening + std::f32::consts::FRAC_1_SQRT_2 * pixel;
+        (
+            footprints(&parts, pixel, coarse_widening),
+            footprints(&parts, fine_pixel, fine_widening),
+        )
+    };
+    let heights: Vec<f32> = match only {
+        None => view.height.clone(),
+        Some(id) => (view.height.iter().zip(&view.ids))
+            .map(|(&h, &of)| if of == id { h } else { 0.0 })
+            .collect(),
+    };
+    let highest = highest_per_pixel(&heights, view.side(), side, factor);
     let pad_ends: Vec<Option<f32>> = (0..side * side)
         .map(|i| judged(i).then(|| pad_ends(obs, i / side, i % side)))
         .collect();
     let mut clear = Vec::with_capacity(ROTATIONS as usize * side * side);
-    for footprint in footprints(&jaws_parts(jaws), obs.grid.pixel_size(), margin) {
+    for (rotation, footprint) in coarse.iter().enumerate() {
         clear.extend(pad_ends.iter().enumerate().map(|(start, pad_ends)| {
-            let Some(pad_ends) = pad_ends else {
+            let Some(pad_ends) = *pad_ends else {
                 return true;
             };
-            let (row, col) = ((start / side) as isize, (start % side) as isize);
-            !footprint.iter().any(|under| {
-                let (r, c) = (row + under.offset[1], col + under.offset[0]);
-                let inside = |a: isize| (0..side as isize).contains(&a);
-                inside(r)
-                    && inside(c)
-                    && obs.height[r as usize * side + c as usize]
-                        > pad_ends + under.above_pad_ends + PRESS_TOLERANCE
-            })
+            let (row, col) = (start / side, start % side);
+            !presses(&highest, side, [row, col], footprint, pad_ends)
+                || (factor > 1 && {
+                    let centre = [row * factor + factor / 2, col * factor + factor / 2];
+                    !presses(&heights, view.side(), centre, &fine[rotation], pad_ends)
+                })
         }));
     }
     clear
+}
+
+/// Whether any pixel of `heights` (`side x side`) under `footprint`, placed at pixel
+/// `[row, col]`, stands higher than its part's lower face, the pads' ends at `pad_ends`.
+fn presses(
+    heights: &[f32],
+    side: usize,
+    [row, col]: [usize; 2],
+    footprint: &[UnderJaws],
+    pad_ends: f32,
+) -> bool {
+    footprint.iter().any(|under| {
+        let (r, c) = (
+            row as isize + under.offset[1],
+            col as isize + under.offset[0],
+        );
+        let inside = |a: isize| (0..side as isize).contains(&a);
+        inside(r)
+            && inside(c)
+            && heights[r as usize * side + c as usize]
+                > pad_ends + under.above_pad_ends + PRESS_TOLERANCE
+    })
+}
+
+/// For each observation pixel (`side x side`), the highest of the `factor x factor`
+/// pixels of `heights` (`fine_side x fine_side`) it holds.
+fn highest_per_pixel(heights: &[f32], fine_side: usize, side: usize, factor: usize) -> Vec<f32> {
+    if factor == 1 {
+        return heights.to_vec();
+    }
+    let mut highest = vec![0.0f32; side * side];
+    for (i, &h) in heights.iter().enumerate() {
+        let (r, c) = (i / fine_side / factor, i % fine_side / factor);
+        let top = &mut highest[r * side + c];
+        *top = top.max(h);
+    }
+    highest
 }
 
 /// A pixel under the jaws, relative to the action's pixel: its (column, row)
@@ -79,9 +184,9 @@ struct UnderJaws {
 }
 
 /// For each rotation, the pixels (of `pixel_size` metres) whose centres lie under one of
-/// `parts` widened by `margin` and half a pixel: a pixel counts where any of it is.
-fn footprints(parts: &[JawsPart], pixel_size: f32, margin: f32) -> Vec<Vec<UnderJaws>> {
-    let widen = margin + 0.5 * pixel_size;
+/// `parts` widened by `widen` metres (the margin and half a pixel: a pixel counts where any
+/// of it is).
+fn footprints(parts: &[JawsPart], pixel_size: f32, widen: f32) -> Vec<Vec<UnderJaws>> {
     let far = |[a, b]: [f32; 2]| a.abs().max(b.abs()) + widen;
     let reach = parts
         .iter()

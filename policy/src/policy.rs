@@ -70,6 +70,9 @@ pub struct PolicyInput<'a> {
     pub pushes_so_far: usize,
     /// How far a push moves the tool (metres; the simulator's `push_length`).
     pub push_length: f32,
+    /// The scene rendered finer for the landing guard, on [`PolicyConfig::landing_view`]'s
+    /// grid where it names one; without it the guard reads `obs` alone.
+    pub landing_view: Option<&'a Heightmaps>,
     /// Grasps that picked nothing, remembered by the caller (the test loop under `eval
     /// --avoid-failed-grasps`; empty otherwise): none is chosen again, nor a grasp near it
     /// ([`REPEAT_RADIUS`](crate::REPEAT_RADIUS)).
@@ -143,7 +146,13 @@ pub fn choose(
     let goal_grasp_q = best_grasp.0;
     let best_push = match input.push {
         Some(push) => {
-            let starts = push_region(obs, input.goal, config, input.push_length);
+            let starts = push_region(
+                obs,
+                input.landing_view,
+                input.goal,
+                config,
+                input.push_length,
+            );
             let best = push
                 .best_where(&starts)
                 .ok_or(PolicyError::NoQValue(Primitive::Push))?;

@@ -9,7 +9,7 @@ use crate::config::PolicyConfig;
 use crate::goal_guard::pushes_keeping_goal;
 use crate::grasp_repeats::grasps_not_repeating;
 use crate::grasp_squeeze::grasps_holding_goal;
-use crate::jaws_landing::{grasps_landing_clear, pushes_landing_clear};
+use crate::jaws_landing::{grasps_landing_clear, pushes_landing_clear, pushes_landing_clear_of};
 use crate::push_reach::pushes_near_goal;
 
 /// A push may only start where the surface is lower than this (metres): "pushes may not
@@ -151,12 +151,14 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
 /// those of them that keep the goal in the workspace ([`pushes_keeping_goal`]); under its
 /// `push_reach`, of those, the ones that pass near the goal ([`pushes_near_goal`]); under
 /// its `landing_guard`, of those, the ones whose jaws come down clear of every object
-/// ([`pushes_landing_clear`]). A mask that would leave no push is not applied, nor any
-/// after it: the landing guard comes last so that, where it would close every push near a
-/// goal packed in on all sides, the pushes that reach the goal stay open rather than
-/// pushes in the air, which change nothing.
+/// ([`pushes_landing_clear`]) and, given a `landing_view` (the scene rendered finer), clear
+/// of the goal as it sees it ([`pushes_landing_clear_of`]). A mask that would leave no push
+/// is not applied, nor any after it: the landing guard comes last so that, where it would
+/// close every push near a goal packed in on all sides, the pushes that reach the goal stay
+/// open rather than pushes in the air, which change nothing.
 pub fn push_region(
     obs: &Heightmaps,
+    landing_view: Option<&Heightmaps>,
     goal: ObjectId,
     config: &PolicyConfig,
     push_length: f32,
@@ -169,9 +171,16 @@ pub fn push_region(
         config
             .push_reach
             .map(|reach| pushes_near_goal(obs, goal, push_length, reach)),
-        config
-            .landing_guard
-            .map(|margin| pushes_landing_clear(obs, margin)),
+        config.landing_guard.map(|margin| {
+            let clear = pushes_landing_clear(obs, margin);
+            match landing_view {
+                None => clear,
+                Some(view) => (clear.iter())
+                    .zip(pushes_landing_clear_of(obs, view, goal, margin))
+                    .map(|(&a, b)| a && b)
+                    .collect(),
+            }
+        }),
     ]
     .into_iter()
     .flatten()

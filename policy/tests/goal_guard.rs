@@ -88,5 +88,5 @@ fn under_the_guard_the_policy_passes_over_a_closed_push() {
         goal_guard: Some(MARGIN),
         ..PolicyConfig::default()
     };
-    passes_over(&obs, GOAL, config.push_length, &closed, &guarded);
+    passes_over(&obs, None, GOAL, config.push_length, &closed, &guarded);
 }

@@ -5,6 +5,8 @@
 //! open rather than the pushes in the air. A grasp whose open pads would come down on a
 //! neighbour's top is closed, and in the simulator it picks nothing; turned a quarter it is
 //! open and picks the goal; the policy under the grasp guard passes over a closed grasp.
+//! Seen finer, a push whose jaws come down on the goal's corner between pixel centres is
+//! closed, which the observation's pixels miss, and the policy passes over it.
 
 mod closed_push;
 mod common;
@@ -17,12 +19,13 @@ use masks::{cubes, index, push};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
 use sim::{
-    Action, Camera, Heightmaps, ObjectId, Primitive, ROTATIONS, ShapeKind, SimConfig, Tabletop,
+    Action, Camera, Heightmaps, Jaws, ObjectId, Primitive, ROTATIONS, ShapeKind, SimConfig,
+    Tabletop, jaws_parts,
 };
 
 use policy::{
     PolicyConfig, grasp_choices, grasps_landing_clear, push_region, pushes_landing_clear,
-    pushes_near_goal, valid_push_starts,
+    pushes_landing_clear_of, pushes_near_goal, valid_push_starts,
 };
 
 const GOAL: ObjectId = 1;
@@ -48,6 +51,88 @@ fn jaws_coming_down_on_a_cube_close_the_push_and_clear_of_it_leave_it_open() {
     // A margin closes a start the bare jaws would clear.
     assert!(clear(&obs, 0.044, 0.0, 0.0));
     assert!(!clear(&obs, 0.044, 0.0, 0.004));
+}
+
+/// The push along +x the corner tests make, from a pixel near the workspace's centre.
+const ONTO_THE_CORNER: Action = Action {
+    primitive: Primitive::Push,
+    rotation: TOWARDS_X,
+    row: 56,
+    col: 40,
+};
+
+/// A cube turned 45 degrees, its corner towards [`ONTO_THE_CORNER`], `inside` metres inside
+/// the closed jaws' front, 2 mm off the row of pixel centres (halfway between two): what the
+/// camera sees, and that seen five times finer.
+fn corner_under_the_jaws(inside: f32) -> (Heightmaps, Heightmaps) {
+    let config = SimConfig::with_pixel_size(0.004);
+    let mut tabletop = Tabletop::new(&config).unwrap();
+    let [x, y] = (tabletop.grid()).pixel_centre(ONTO_THE_CORNER.row, ONTO_THE_CORNER.col);
+    let front = jaws_parts(Jaws::Closed)
+        .iter()
+        .map(|p| p.along[1])
+        .fold(f32::MIN, f32::max);
+    let to_corner = 0.025 * std::f32::consts::SQRT_2;
+    let pose = Pose::from_parts(
+        Vector::new(x + front - inside + to_corner, y + 0.002, 0.025),
+        Rotation::from_rotation_z(std::f32::consts::FRAC_PI_4),
+    );
+    tabletop
+        .add_object(GOAL, ShapeKind::Cube, [200, 50, 50], pose)
+        .unwrap();
+    let obs = Camera::new(tabletop.grid()).render(&tabletop);
+    let view = Camera::new(tabletop.grid().finer(5).unwrap()).render(&tabletop);
+    (obs, view)
+}
+
+#[test]
+fn a_finer_view_closes_a_push_whose_jaws_come_down_on_a_corner_between_pixel_centres() {
+    for inside in [0.001, 0.0015, 0.002] {
+        let (obs, view) = corner_under_the_jaws(inside);
+        let i = index(&obs, &ONTO_THE_CORNER);
+        assert!(pushes_landing_clear(&obs, 0.0)[i], "{inside}: seen at 4 mm");
+        assert!(
+            !pushes_landing_clear_of(&obs, &view, GOAL, 0.0)[i],
+            "{inside}: seen finer"
+        );
+    }
+    // A millimetre ahead of the jaws, the corner closes nothing either way.
+    let (obs, view) = corner_under_the_jaws(-0.001);
+    let i = index(&obs, &ONTO_THE_CORNER);
+    assert!(pushes_landing_clear(&obs, 0.0)[i]);
+    assert!(pushes_landing_clear_of(&obs, &view, GOAL, 0.0)[i]);
+}
+
+#[test]
+fn under_a_finer_view_the_policy_passes_over_a_push_onto_the_goal_s_corner() {
+    let (obs, view) = corner_under_the_jaws(0.0015);
+    let guarded = PolicyConfig {
+        landing_guard: Some(0.0),
+        landing_subpixels: 5,
+        ..PolicyConfig::default()
+    };
+    let push_length = SimConfig::default().push_length;
+    passes_over(
+        &obs,
+        Some(&view),
+        GOAL,
+        push_length,
+        &ONTO_THE_CORNER,
+        &guarded,
+    );
+}
+
+#[test]
+fn a_finer_view_keeps_every_verdict_far_from_the_objects() {
+    // Both views agree wherever the jaws come down more than a pixel from the goal's outline;
+    // its neighbour closes nothing.
+    let (tabletop, obs, _) = cubes(&[(GOAL, 0.0, 0.0), (2, 0.08, 0.03)]);
+    let view = Camera::new(tabletop.grid().finer(3).unwrap()).render(&tabletop);
+    let coarse = pushes_landing_clear_of(&obs, &obs, GOAL, 0.0);
+    let fine = pushes_landing_clear_of(&obs, &view, GOAL, 0.0);
+    let differ = coarse.iter().zip(&fine).filter(|(c, f)| c != f).count();
+    let closed = coarse.iter().filter(|&&c| !c).count();
+    assert!(differ * 10 < closed, "{differ} of {closed}");
 }
 
 #[test]
@@ -102,7 +187,7 @@ fn under_the_guard_the_policy_passes_over_a_closed_push() {
         landing_guard: Some(0.0),
         ..PolicyConfig::default()
     };
-    passes_over(&obs, GOAL, config.push_length, &closed, &guarded);
+    passes_over(&obs, None, GOAL, config.push_length, &closed, &guarded);
 }
 
 #[test]
@@ -118,7 +203,7 @@ fn where_the_guard_would_close_every_push_near_the_goal_those_pushes_stay_open()
         |a: &[bool], b: &[bool]| -> Vec<bool> { a.iter().zip(b).map(|(&a, &b)| a && b).collect() };
     assert!(clear.contains(&true));
     assert!(!both(&near, &clear).contains(&true));
-    let region = |policy: &PolicyConfig| push_region(&obs, GOAL, policy, config.push_length);
+    let region = |policy: &PolicyConfig| push_region(&obs, None, GOAL, policy, config.push_length);
     let guarded = PolicyConfig {
         landing_guard: Some(WIDE),
         ..PolicyConfig::default()

@@ -65,6 +65,7 @@ fn input<'a>(
         push,
         pushes_so_far,
         push_length: 0.13,
+        landing_view: None,
         failed_grasps: &[],
     }
 }

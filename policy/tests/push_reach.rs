@@ -83,14 +83,23 @@ fn under_the_reach_the_policy_neither_chooses_nor_explores_a_closed_push() {
     let (_, obs, config) = goal_and_neighbour(0.13);
     let far = push(&obs, TOWARDS_X, -0.07, 0.13);
     let chosen = |policy: &PolicyConfig, epsilon: f32, seed: u64| {
-        chosen(&obs, GOAL, config.push_length, &far, policy, epsilon, seed)
+        chosen(
+            &obs,
+            None,
+            GOAL,
+            config.push_length,
+            &far,
+            policy,
+            epsilon,
+            seed,
+        )
     };
     assert_eq!(chosen(&PolicyConfig::default(), 0.0, 0), far);
     let reaching = PolicyConfig {
         push_reach: Some(REACH),
         ..PolicyConfig::default()
     };
-    let region = push_region(&obs, GOAL, &reaching, config.push_length);
+    let region = push_region(&obs, None, GOAL, &reaching, config.push_length);
     let greedy = chosen(&reaching, 0.0, 0);
     assert_eq!(greedy.primitive, Primitive::Push);
     assert!(region[index(&obs, &greedy)] && !region[index(&obs, &far)]);

@@ -147,6 +147,8 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("policy.crowded_border", "1.2"),
         ("policy.goal_guard", "-0.02"),
         ("policy.landing_guard", "-0.004"),
+        ("policy.landing_subpixels", "4"),
+        ("policy.landing_subpixels", "11"),
         ("policy.grasp_landing_guard", "-0.004"),
         ("policy.squeeze_guard", "-0.3"),
         ("policy.push_reach", "-0.04"),
@@ -174,6 +176,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
     for (field, value) in [
         ("sim.grasp_lift", "0.05"),
         ("policy.epsilon_decay", "1.0"),
+        ("policy.landing_subpixels", "9"),
         ("learning.gamma", "0.0"),
         ("learning.polyak_rate", "1.0"),
     ] {

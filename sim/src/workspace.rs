@@ -94,6 +94,13 @@ impl PixelGrid {
         (col >= 0.0 && row >= 0.0 && col < n && row < n).then_some((row as usize, col as usize))
     }
 
+    /// The grid `factor` times finer, on the same workspace: each of this grid's pixels
+    /// splits into `factor x factor`, and for an odd `factor` its centre is the centre of
+    /// the middle one.
+    pub fn finer(&self, factor: usize) -> Result<Self, SimError> {
+        Self::new(self.pixel_size / factor as f32)
+    }
+
     /// How many pixels of this grid span one reference (2 mm) pixel: pixel-count thresholds
     /// and window sizes stated at 2 mm scale by this factor (areas by its square).
     pub fn scale(&self) -> f32 {

@@ -26,6 +26,7 @@ pub fn chosen_grasp(
         push: None,
         pushes_so_far: 0,
         push_length,
+        landing_view: None,
         failed_grasps: &[],
     };
     let mut rng = ChaCha8Rng::seed_from_u64(0);

@@ -40,9 +40,12 @@ pub fn index(obs: &Heightmaps, action: &Action) -> usize {
 }
 
 /// What `policy` does for `goal` when `peak` is the one push with a Q above 0 and every
-/// grasp's Q is 0 (below Q*: a push is due), exploring with `epsilon` from `seed`.
+/// grasp's Q is 0 (below Q*: a push is due), exploring with `epsilon` from `seed`, the
+/// landing guard reading `landing_view` where given.
+#[allow(clippy::too_many_arguments)]
 pub fn chosen(
     obs: &Heightmaps,
+    landing_view: Option<&Heightmaps>,
     goal: ObjectId,
     push_length: f32,
     peak: &Action,
@@ -62,6 +65,7 @@ pub fn chosen(
         push: Some(&push_maps),
         pushes_so_far: 0,
         push_length,
+        landing_view,
         failed_grasps: &[],
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed);

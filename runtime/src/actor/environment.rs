@@ -33,6 +33,8 @@ pub(super) struct Environment<'a> {
     tabletop: Tabletop,
     camera: Camera,
     episode: Option<Episode>,
+    /// The scene on the policy's landing view grid, rendered for each decision.
+    landing_view: Option<Heightmaps>,
     unlabelled: Option<Unlabelled>,
     /// Grasps in a row that held nothing: a scene stuck for too long is replaced.
     failures_in_a_row: usize,
@@ -63,6 +65,7 @@ impl<'a> Environment<'a> {
             camera: Camera::new(tabletop.grid()),
             tabletop,
             episode: None,
+            landing_view: None,
             unlabelled: None,
             failures_in_a_row: 0,
             scene_goal: None,
@@ -166,8 +169,12 @@ impl<'a> Environment<'a> {
     /// What the agent decides on in this environment, while an episode is under way.
     pub(super) fn situation(&mut self) -> Option<Situation<'_>> {
         let episode = self.episode.as_ref()?;
+        self.landing_view = (self.config.policy)
+            .landing_view(self.tabletop.grid())
+            .map(|grid| Camera::new(grid).render(&self.tabletop));
         Some(Situation {
             obs: &episode.obs,
+            landing_view: self.landing_view.as_ref(),
             goal: episode.goal,
             pushes_so_far: episode.step as usize,
             failed_grasps: &[],

@@ -377,8 +377,11 @@ impl<'a> LearnerRole<'a> {
                     Primitive::Grasp => {
                         grasp_region(&next.obs, t.goal, self.config.policy.grasp_margin)
                     }
+                    // Replay keeps the observation only: a finer landing view is not
+                    // at hand here.
                     Primitive::Push => push_region(
                         &next.obs,
+                        None,
                         t.goal,
                         &self.config.policy,
                         self.config.sim.push_length,
