@@ -15,6 +15,8 @@
 //! the table; the goal, whose loss ends the run, is also judged on the scene rendered finer
 //! ([`pushes_landing_clear_of`]).
 
+use std::borrow::Cow;
+
 use sim::{
     Heightmaps, Jaws, JawsPart, ObjectId, ROTATIONS, grasp_pad_ends_height, jaws_parts,
     push_pad_ends_height,
@@ -111,8 +113,8 @@ fn landing_clear(
             footprints(&parts, fine_pixel, fine_widening),
         )
     };
-    let heights: Vec<f32> = match only {
-        None => view.height.clone(),
+    let heights: Cow<[f32]> = match only {
+        None => Cow::Borrowed(&view.height),
         Some(id) => (view.height.iter().zip(&view.ids))
             .map(|(&h, &of)| if of == id { h } else { 0.0 })
             .collect(),
@@ -161,10 +163,15 @@ fn presses(
 }
 
 /// For each observation pixel (`side x side`), the highest of the `factor x factor`
-/// pixels of `heights` (`fine_side x fine_side`) it holds.
-fn highest_per_pixel(heights: &[f32], fine_side: usize, side: usize, factor: usize) -> Vec<f32> {
+/// pixels of `heights` (`fine_side x fine_side`) it holds: `heights` itself at a factor of 1.
+fn highest_per_pixel(
+    heights: &[f32],
+    fine_side: usize,
+    side: usize,
+    factor: usize,
+) -> Cow<'_, [f32]> {
     if factor == 1 {
-        return heights.to_vec();
+        return Cow::Borrowed(heights);
     }
     let mut highest = vec![0.0f32; side * side];
     for (i, &h) in heights.iter().enumerate() {
@@ -172,7 +179,7 @@ fn highest_per_pixel(heights: &[f32], fine_side: usize, side: usize, factor: usi
         let top = &mut highest[r * side + c];
         *top = top.max(h);
     }
-    highest
+    Cow::Owned(highest)
 }
 
 /// A pixel under the jaws, relative to the action's pixel: its (column, row)
