@@ -94,6 +94,14 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             let actions = run["actions"].as_array().unwrap();
             assert!(!actions.is_empty());
             assert!(actions.iter().all(|a| a["goal_grasp_q"].is_number()));
+            // Where each action was made: a rotation and a pixel of the heightmap.
+            assert!(actions.iter().all(|a| {
+                a["at"]["rotation"]
+                    .as_u64()
+                    .is_some_and(|r| r < u64::from(sim::ROTATIONS))
+                    && a["at"]["row"].is_u64()
+                    && a["at"]["col"].is_u64()
+            }));
             // The goal is in view whenever an action is chosen: at most half the
             // workspace's side inside its edge.
             let half_side = f64::from(sim::workspace::SIDE) / 2.0 + 1e-4;

@@ -25,7 +25,7 @@ use sim::workspace::inside_by;
 use sim::{ANY_OBJECT, Arrangement, Camera, ObjectId, Primitive, SimConfig, SimError, Tabletop};
 
 use crate::agent::{Agent, AgentError, Situation};
-use crate::metrics::{ActionRecord, CaseMetrics, RunRecord};
+use crate::metrics::{ActionAt, ActionRecord, CaseMetrics, RunRecord};
 use crate::test_learning::{RunLearner, TestLearning};
 
 /// How the test runs are made.
@@ -276,6 +276,7 @@ fn test_run(
         }
         record.actions.push(ActionRecord {
             primitive: action.primitive,
+            at: Some(ActionAt::from(&action)),
             grasped: outcome.grasped,
             goal_grasp_q: decision.goal_grasp_q,
             goal_border_occupancy: Some(occupancy_ratio(&obs, goal)),

@@ -13,5 +13,5 @@ pub mod test_learning;
 pub use agent::{Agent, AgentError, Choice, Situation};
 pub use evaluate::{EvalConfig, Scene, evaluate};
 pub use failures::FailureReport;
-pub use metrics::{ActionRecord, CaseMetrics, RunOutcome, RunRecord};
+pub use metrics::{ActionAt, ActionRecord, CaseMetrics, RunOutcome, RunRecord};
 pub use test_learning::TestLearning;

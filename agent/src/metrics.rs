@@ -14,7 +14,7 @@
 //! is "the gripper did not close fully"), over the same complete runs.
 
 use serde::{Deserialize, Serialize};
-use sim::{ANY_OBJECT, ObjectId, Primitive};
+use sim::{ANY_OBJECT, Action, ObjectId, Primitive};
 use stats::mean_and_spread;
 
 /// Failed grasp attempts in a row that end a run incomplete.
@@ -24,6 +24,10 @@ pub const MAX_FAILED_GRASPS: usize = 10;
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ActionRecord {
     pub primitive: Primitive,
+    /// Where it was made, to trace it or make it again on the run's scene; absent from
+    /// records written before it was kept.
+    #[serde(default)]
+    pub at: Option<ActionAt>,
     /// For a grasp: the object it picked, if any.
     pub grasped: Option<ObjectId>,
     /// The goal's best grasp Q when the action was chosen (the policy's discriminator
@@ -39,6 +43,24 @@ pub struct ActionRecord {
     /// a goal-agnostic run.
     #[serde(default)]
     pub goal_inside_edge: Option<f32>,
+}
+
+/// Where an action was made: its rotation (of [`sim::ROTATIONS`]) and heightmap pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ActionAt {
+    pub rotation: u8,
+    pub row: usize,
+    pub col: usize,
+}
+
+impl From<&Action> for ActionAt {
+    fn from(action: &Action) -> Self {
+        Self {
+            rotation: action.rotation,
+            row: action.row,
+            col: action.col,
+        }
+    }
 }
 
 /// What happened in one test run.

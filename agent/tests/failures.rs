@@ -10,6 +10,7 @@ const GOAL: u8 = 4;
 fn action(primitive: Primitive, grasped: Option<u8>, q: f32, border: f32) -> ActionRecord {
     ActionRecord {
         primitive,
+        at: None,
         grasped,
         goal_grasp_q: q,
         goal_border_occupancy: Some(border),

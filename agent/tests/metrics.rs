@@ -9,6 +9,7 @@ const GOAL: u8 = 4;
 fn push() -> ActionRecord {
     ActionRecord {
         primitive: Primitive::Push,
+        at: None,
         grasped: None,
         goal_grasp_q: 0.0,
         goal_border_occupancy: None,
@@ -19,6 +20,7 @@ fn push() -> ActionRecord {
 fn grasp(grasped: Option<u8>) -> ActionRecord {
     ActionRecord {
         primitive: Primitive::Grasp,
+        at: None,
         grasped,
         goal_grasp_q: 0.0,
         goal_border_occupancy: None,

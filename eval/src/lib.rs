@@ -101,8 +101,9 @@ pub struct EvalArgs {
     #[arg(long)]
     json: bool,
     /// Also write every run to this file, one JSON object per line: its case, index, goal,
-    /// outcome and actions (primitive, object grasped, and when it was chosen the goal's
-    /// grasp Q, its border's occupancy and how far inside the workspace's edge it lay).
+    /// outcome and actions (primitive, where it was made (rotation, row, column), object
+    /// grasped, and when it was chosen the goal's grasp Q, its border's occupancy and how
+    /// far inside the workspace's edge it lay).
     #[arg(long, value_name = "FILE")]
     runs_json: Option<PathBuf>,
 }
