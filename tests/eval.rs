@@ -140,6 +140,45 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     };
     assert!(first_actions("-1000").iter().all(|p| p == "grasp"));
     assert!(first_actions("1000").iter().all(|p| p == "push"));
+
+    // A free border grasps where Q* would push; once, only until a grasp picks nothing,
+    // after which Q* pushes.
+    let runs_under = |once: &str| -> Vec<Vec<Value>> {
+        eval(
+            "1",
+            &[
+                "--set",
+                "policy.q_star=1000",
+                "--set",
+                "policy.free_border=1",
+                "--set",
+                &format!("policy.free_border_once={once}"),
+            ],
+        );
+        std::fs::read_to_string(&runs_json)
+            .unwrap()
+            .lines()
+            .map(|line| {
+                let run: Value = serde_json::from_str(line).unwrap();
+                run["actions"].as_array().unwrap().clone()
+            })
+            .collect()
+    };
+    let every_action = |runs: &[Vec<Value>]| runs.iter().flatten().cloned().collect::<Vec<_>>();
+    assert!(
+        every_action(&runs_under("false"))
+            .iter()
+            .all(|a| a["primitive"] == "grasp")
+    );
+    let once = runs_under("true");
+    let after_a_failed_grasp: Vec<&Value> = once
+        .iter()
+        .flat_map(|run| run.windows(2))
+        .filter(|pair| pair[0]["primitive"] == "grasp" && pair[0]["grasped"].is_null())
+        .map(|pair| &pair[1]["primitive"])
+        .collect();
+    assert!(!after_a_failed_grasp.is_empty());
+    assert!(after_a_failed_grasp.iter().all(|&p| p == "push"));
     // Settings merge, and the report says the policy that acted.
     let margined = eval(
         "1",
@@ -154,6 +193,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "sim.guarded_push_descent=true",
             "--set",
             "policy.free_border=0.25",
+            "--set",
+            "policy.free_border_once=true",
             "--set",
             "policy.landing_guard=0.004",
             "--set",
@@ -173,6 +214,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             margined["goal_guard"].as_f64(),
             margined["guarded_push_descent"].as_bool(),
             margined["free_border"].as_f64(),
+            margined["free_border_once"].as_bool(),
             margined["landing_guard"].as_f64(),
             margined["landing_subpixels"].as_u64(),
             margined["grasp_landing_guard"].as_f64(),
@@ -186,6 +228,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             Some(0.02),
             Some(true),
             Some(0.25),
+            Some(true),
             Some(0.004),
             Some(3),
             Some(0.002),

@@ -42,6 +42,8 @@ pub struct Situation<'a> {
     pub pushes_so_far: usize,
     /// Grasps not to make again ([`PolicyInput::failed_grasps`]).
     pub failed_grasps: &'a [Action],
+    /// ([`PolicyInput::grasp_failed_since_push`]).
+    pub grasp_failed_since_push: bool,
     pub epsilon: f32,
     pub rng: &'a mut ChaCha8Rng,
 }
@@ -140,6 +142,7 @@ impl Agent {
                     push_length: self.push_length,
                     landing_view: s.landing_view,
                     failed_grasps: s.failed_grasps,
+                    grasp_failed_since_push: s.grasp_failed_since_push,
                 };
                 let decision =
                     policy::choose(&self.policy, self.mode, &policy_input, s.epsilon, s.rng)?;

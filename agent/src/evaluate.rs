@@ -221,6 +221,7 @@ fn test_run(
     };
     let mut pushes = 0;
     let mut failed_grasps = Vec::new();
+    let mut grasp_failed_since_push = false;
     let mut before_push = None;
     while record.actions.len() < max_actions && !record.outcome().decided {
         let obs = camera.render(&tabletop);
@@ -238,6 +239,7 @@ fn test_run(
             goal,
             pushes_so_far: pushes,
             failed_grasps: &failed_grasps,
+            grasp_failed_since_push,
             epsilon: 0.0,
             rng: &mut rng,
         };
@@ -263,12 +265,14 @@ fn test_run(
             Primitive::Push => {
                 pushes += 1;
                 failed_grasps.clear();
+                grasp_failed_since_push = false;
                 if config.grasp_after_idle_push {
                     before_push = Some(obs.clone());
                 }
             }
             Primitive::Grasp => {
                 pushes = 0;
+                grasp_failed_since_push |= outcome.grasped.is_none();
                 if config.avoid_failed_grasps && outcome.grasped.is_none() {
                     failed_grasps.push(action);
                 }

@@ -117,7 +117,14 @@ pub(crate) fn print_table(report: &EvalReport) {
             .unwrap_or_default(),
         policy
             .free_border
-            .map(|free| format!(", grasp at a border ring at most {free} occupied"))
+            .map(|free| {
+                let once = if policy.free_border_once {
+                    " until a grasp fails"
+                } else {
+                    ""
+                };
+                format!(", grasp at a border ring at most {free} occupied{once}")
+            })
             .unwrap_or_default(),
         if report.guarded_push_descent {
             ", guarded push descent"

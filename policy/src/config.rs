@@ -72,6 +72,11 @@ pub struct PolicyConfig {
     /// nothing around it needs no push, and pushing a free goal on is how most goals leave
     /// the scene. `None`: Q* alone decides, as in the paper.
     pub free_border: Option<f32>,
+    /// Under `free_border`: a goal whose grasp has failed since the last push is no longer
+    /// grasped for its free border, and Q* decides ([`PolicyInput::grasp_failed_since_push`](crate::PolicyInput::grasp_failed_since_push)):
+    /// a free goal the grasps keep missing (at the workspace's edge, or lying where the
+    /// jaws slip off it) is pushed rather than grasped until the run runs out of attempts.
+    pub free_border_once: bool,
 }
 
 /// How the policy chooses between pushing and grasping.
@@ -108,6 +113,7 @@ impl Default for PolicyConfig {
             squeeze_guard: None,
             push_reach: None,
             free_border: None,
+            free_border_once: false,
         }
     }
 }

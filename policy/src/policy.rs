@@ -77,6 +77,10 @@ pub struct PolicyInput<'a> {
     /// --avoid-failed-grasps`; empty otherwise): none is chosen again, nor a grasp near it
     /// ([`REPEAT_RADIUS`](crate::REPEAT_RADIUS)).
     pub failed_grasps: &'a [Action],
+    /// Whether a grasp in this run has picked nothing since its last push (the test loop
+    /// knows; a training episode ends at its grasp), for
+    /// [`PolicyConfig::free_border_once`].
+    pub grasp_failed_since_push: bool,
 }
 
 /// The policy's choice and what it was based on.
@@ -115,7 +119,8 @@ impl Decision {
 /// Picks the next action. Grasp when `mode` is grasp-only, the push budget is spent, or
 /// there are no push maps; otherwise the config's [`Rule`] decides (the paper's: grasp when
 /// the goal's grasp Q exceeds Q*, else push; under `free_border`, also grasp when the goal's
-/// border ring is free). The primitive goes to the argmax of its Q maps
+/// border ring is free, unless under `free_border_once` a grasp has failed since the last
+/// push). The primitive goes to the argmax of its Q maps
 /// over its allowed pixels ([`grasp_choices`], [`push_region`]) and all rotations, or,
 /// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set.
 /// Deterministic given `rng`.
@@ -171,6 +176,7 @@ pub fn choose(
         matches!(config.rule, Rule::Threshold | Rule::ThresholdOrCrowded)
             && mode == Mode::PushGrasp
             && !above
+            && !(config.free_border_once && input.grasp_failed_since_push)
             && occupancy_ratio(obs, input.goal) <= free
     });
     let reason = match (best_push_q, config.rule) {

@@ -67,6 +67,7 @@ fn input<'a>(
         push_length: 0.13,
         landing_view: None,
         failed_grasps: &[],
+        grasp_failed_since_push: false,
     }
 }
 
@@ -340,6 +341,7 @@ fn a_grasp_that_picked_nothing_is_not_made_again_nor_its_near_twins() {
     let choose_after = |failed: &[Action]| {
         let input = PolicyInput {
             failed_grasps: failed,
+            grasp_failed_since_push: false,
             ..input(&obs, &grasp, None, 0)
         };
         greedy_with(&PolicyConfig::default(), Mode::GraspOnly, &input)
@@ -749,5 +751,42 @@ fn free_border_grasps_a_goal_with_nothing_around_it_below_q_star() {
     assert_eq!(
         (d.action.primitive, d.reason),
         (Primitive::Push, Reason::BelowThreshold)
+    );
+}
+
+#[test]
+fn free_border_once_pushes_a_free_goal_whose_grasp_has_failed_since_the_last_push() {
+    let f = Fixture::new();
+    let grasp = f.grasp(1.5);
+    let decide = |config: &PolicyConfig, grasp_failed_since_push: bool| {
+        let input = PolicyInput {
+            grasp_failed_since_push,
+            ..input(&f.obs, &grasp, Some(&f.push), 0)
+        };
+        let d = greedy_with(config, Mode::PushGrasp, &input);
+        (d.action.primitive, d.reason)
+    };
+    let free = PolicyConfig {
+        free_border: Some(0.02),
+        ..PolicyConfig::default()
+    };
+    let once = PolicyConfig {
+        free_border_once: true,
+        ..free.clone()
+    };
+    let grasps = (Primitive::Grasp, Reason::BorderFree);
+    let pushes = (Primitive::Push, Reason::BelowThreshold);
+    assert_eq!(decide(&free, true), grasps);
+    assert_eq!(decide(&once, false), grasps);
+    assert_eq!(decide(&once, true), pushes);
+    // Above Q* it grasps whatever failed before.
+    let sure = f.grasp(2.5);
+    let input = PolicyInput {
+        grasp_failed_since_push: true,
+        ..input(&f.obs, &sure, Some(&f.push), 0)
+    };
+    assert_eq!(
+        greedy_with(&once, Mode::PushGrasp, &input).reason,
+        Reason::AboveThreshold
     );
 }

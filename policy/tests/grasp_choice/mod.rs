@@ -28,6 +28,7 @@ pub fn chosen_grasp(
         push_length,
         landing_view: None,
         failed_grasps: &[],
+        grasp_failed_since_push: false,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     choose(policy, Mode::PushGrasp, &input, 0.0, &mut rng).unwrap()

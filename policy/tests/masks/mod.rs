@@ -67,6 +67,7 @@ pub fn chosen(
         push_length,
         landing_view,
         failed_grasps: &[],
+        grasp_failed_since_push: false,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     choose(policy, Mode::PushGrasp, &input, epsilon, &mut rng)

@@ -178,6 +178,8 @@ impl<'a> Environment<'a> {
             goal: episode.goal,
             pushes_so_far: episode.step as usize,
             failed_grasps: &[],
+            // A grasp ends the episode.
+            grasp_failed_since_push: false,
             epsilon: self.config.epsilon(self.id.index, self.report.actions),
             rng: &mut self.rng,
         })
