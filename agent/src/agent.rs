@@ -42,6 +42,7 @@ pub struct Situation<'a> {
     pub pushes_so_far: usize,
     /// Grasps not to make again ([`PolicyInput::failed_grasps`]).
     pub failed_grasps: &'a [Action],
+    /// Whether a grasp has picked nothing since the last push
     /// ([`PolicyInput::grasp_failed_since_push`]).
     pub grasp_failed_since_push: bool,
     pub epsilon: f32,

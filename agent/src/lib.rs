@@ -1,6 +1,6 @@
 //! The agent: the push and grasp Q-networks acting through the hierarchical policy
 //! ([`Agent`]), the same code for training actors and for evaluation, and the evaluation
-//! itself ([`evaluate`]): test runs on the paper's arrangements or on random scenes, scored
+//! itself ([`evaluate()`]): test runs on the paper's arrangements or on random scenes, scored
 //! with the paper's completion, goal grasp success and motion number, and optionally under
 //! the authors' own test protocol ([`test_learning`]).
 

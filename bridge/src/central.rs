@@ -113,7 +113,7 @@ impl Central {
     }
 
     /// Refuses further joins, then waits until every live host, and every host lost less
-    /// than [`RETURN_GRACE`] ago, has said it is done (they stop when the launcher's order
+    /// than `RETURN_GRACE` ago, has said it is done (they stop when the launcher's order
     /// to stop the actors reaches them) or `timeout` passes. Returns the hosts that did not
     /// finish.
     pub fn wait_for_hosts(&self, timeout: Duration) -> Vec<String> {

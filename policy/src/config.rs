@@ -72,10 +72,11 @@ pub struct PolicyConfig {
     /// nothing around it needs no push, and pushing a free goal on is how most goals leave
     /// the scene. `None`: Q* alone decides, as in the paper.
     pub free_border: Option<f32>,
-    /// Under `free_border`: a goal whose grasp has failed since the last push is no longer
-    /// grasped for its free border, and Q* decides ([`PolicyInput::grasp_failed_since_push`](crate::PolicyInput::grasp_failed_since_push)):
-    /// a free goal the grasps keep missing (at the workspace's edge, or lying where the
-    /// jaws slip off it) is pushed rather than grasped until the run runs out of attempts.
+    /// Under `free_border`: once a grasp has picked nothing since the last push
+    /// ([`PolicyInput::grasp_failed_since_push`](crate::PolicyInput::grasp_failed_since_push)),
+    /// the free border no longer decides and Q* does: a free goal the grasps keep missing
+    /// (at the workspace's edge, or lying where the jaws slip off it) is pushed, rather
+    /// than grasped again until the run runs out of attempts.
     pub free_border_once: bool,
 }
 

@@ -11,7 +11,7 @@ use sim::{Heightmaps, ObjectId};
 
 use crate::push_sweep::{goal_pixels, judge_pushes};
 
-/// For each rotation and start pixel, laid out [rotation][row][col] as [`QMaps`](crate::QMaps):
+/// For each rotation and start pixel, laid out `[rotation][row][col]` as [`QMaps`](crate::QMaps):
 /// whether a push of `push_length` metres from there leaves the goal's centre (its visible
 /// pixels' mean) at least `margin` metres inside the workspace. Every push keeps it when the
 /// goal is not seen.

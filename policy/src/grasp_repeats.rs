@@ -10,7 +10,7 @@ use sim::{Action, Heightmaps, ROTATIONS};
 pub const REPEAT_RADIUS: f32 = 0.01;
 
 /// The grasp region (one mask for every rotation) with the grasps near `failed` ones closed,
-/// per rotation, laid out [rotation][row][col] as [`QMaps`](crate::QMaps); `region` as it
+/// per rotation, laid out `[rotation][row][col]` as [`QMaps`](crate::QMaps); `region` as it
 /// was when nothing failed or nothing would be left open.
 pub fn grasps_not_repeating(region: Vec<bool>, failed: &[Action], obs: &Heightmaps) -> Vec<bool> {
     if failed.is_empty() {

@@ -14,7 +14,7 @@ use sim::{Heightmaps, Jaws, ObjectId, ROTATIONS, jaws_parts, rotation_angle};
 /// beyond the open pads' 50 mm.
 const REACH: f32 = 0.06;
 
-/// For each rotation and pixel, laid out [rotation][row][col] as [`QMaps`](crate::QMaps):
+/// For each rotation and pixel, laid out `[rotation][row][col]` as [`QMaps`](crate::QMaps):
 /// whether a grasp there closes the jaws on faces of `goal` whose slopes, summed with the
 /// side each pushes the goal to, stay within twice `friction` (both pads' friction
 /// coefficient with the goal). Open everywhere off the goal's visible mask.

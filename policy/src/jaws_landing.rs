@@ -26,7 +26,7 @@ use sim::{
 /// pads' ends, which come down onto it.
 const PRESS_TOLERANCE: f32 = 0.001;
 
-/// For each rotation and start pixel, laid out [rotation][row][col] as
+/// For each rotation and start pixel, laid out `[rotation][row][col]` as
 /// [`QMaps`](crate::QMaps): whether a push from there lowers the closed jaws, widened by
 /// `margin` metres on every side, onto nothing higher than their parts' lower faces.
 pub fn pushes_landing_clear(obs: &Heightmaps, margin: f32) -> Vec<bool> {

@@ -10,7 +10,7 @@ use sim::{Heightmaps, ObjectId};
 
 use crate::push_sweep::{goal_pixels, judge_pushes};
 
-/// For each rotation and start pixel, laid out [rotation][row][col] as [`QMaps`](crate::QMaps):
+/// For each rotation and start pixel, laid out `[rotation][row][col]` as [`QMaps`](crate::QMaps):
 /// whether a push of `push_length` metres from there passes within `reach` metres of a
 /// visible goal pixel (along or across its swept band). Every push passes when the goal is
 /// not seen.

@@ -33,7 +33,7 @@ pub(crate) fn goal_pixels(obs: &Heightmaps, goal: ObjectId) -> Vec<[f32; 2]> {
         .collect()
 }
 
-/// For each rotation and start pixel, laid out [rotation][row][col] as
+/// For each rotation and start pixel, laid out `[rotation][row][col]` as
 /// [`QMaps`](crate::QMaps): `judge` of the push of `push_length` metres from there, given
 /// the goal (`pixels`) seen along it. Every push is `true` when the goal is not seen.
 pub(crate) fn judge_pushes(

@@ -1,5 +1,5 @@
 //! One primitive's Q values for every rotation, as the networks hand them over: plain `f32`s
-//! laid out [rotation][row][col] over the heightmap.
+//! laid out `[rotation][row][col]` over the heightmap.
 
 use crate::error::PolicyError;
 
@@ -13,7 +13,7 @@ pub struct QMaps {
 }
 
 impl QMaps {
-    /// Wraps `values` laid out [rotation][row][col]; their number must be
+    /// Wraps `values` laid out `[rotation][row][col]`; their number must be
     /// `rotations * side * side`.
     pub fn new(rotations: u8, side: usize, values: Vec<f32>) -> Result<Self, PolicyError> {
         let expected = rotations as usize * side * side;
@@ -42,7 +42,7 @@ impl QMaps {
         self.side
     }
 
-    /// All values, [rotation][row][col].
+    /// All values, `[rotation][row][col]`.
     pub fn values(&self) -> &[f32] {
         &self.values
     }
@@ -70,7 +70,7 @@ impl QMaps {
 
     /// The highest Q value over all rotations at the pixels where `allowed[row * side + col]`
     /// holds (or, for a mask per rotation, `allowed[(rotation * side + row) * side + col]`),
-    /// as `(q, rotation, row, col)`. Ties go to the first in [rotation][row][col] order, so
+    /// as `(q, rotation, row, col)`. Ties go to the first in `[rotation][row][col]` order, so
     /// the choice is deterministic; NaN never wins. `None` when no allowed pixel has a value
     /// other than NaN.
     ///

@@ -24,7 +24,7 @@ pub enum ActingNets {
 impl ActingNets {
     /// `nets` (in inference form: no autodiff, batch norms on their running statistics) as
     /// they act on their device: on a GPU laid out in full once, with their convolution
-    /// weights as its convolutions read them ([`crate::channels_last`]).
+    /// weights as its convolutions read them (`channels_last`).
     pub fn new(nets: &QNets) -> Result<Self, QNetError> {
         Ok(if nets.device() == Device::flex() {
             ActingNets::Cpu(Box::new(Inference::new(nets)?))

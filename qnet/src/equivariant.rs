@@ -36,10 +36,10 @@ pub fn quarter_turns<const D: usize, K: Basic>(x: Tensor<D, K>, turns: usize) ->
 /// features of `groups[0]` channels a field (1: plain input planes) to `groups[1]`, from its
 /// base kernels `[fields_out, channels_in, k, k]` (`channels_in` = fields in x `groups[0]`):
 /// output rotation `g` is the base turned by `g` quarter turns, its input rotations
-/// shifted by `g` ([`laid_out`]). With `groups[1]` 1 the base itself.
+/// shifted by `g` (`laid_out`). With `groups[1]` 1 the base itself.
 ///
 /// Each output field's weights are the same rearrangement of its base kernel's, so they
-/// are gathered in one selection by an index worked out once ([`expansion_index`]): a
+/// are gathered in one selection by an index worked out once (`expansion_index`): a
 /// training step's every convolution lays its weights out anew, and the quarter turns and
 /// shifts one by one were about twenty kernels a convolution on a GPU, their gradients as
 /// many again (an equivariant stage step on lavapipe: 1,070 kernels so, 627 gathered).

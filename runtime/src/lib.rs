@@ -2,7 +2,7 @@
 //! N actors, as child processes of this binary talking over iceoryx2 shared memory (the
 //! default) or as threads talking over crossbeam channels (`--threads`); the roles' code is
 //! the same in both wirings. With `--listen`, actors on other hosts join the run
-//! (`pushgrasp join`, [`join`]): each host keeps its own shared memory, and one bridge per
+//! (`pushgrasp join`, [`join()`]): each host keeps its own shared memory, and one bridge per
 //! host carries what must cross (the `bridge` crate).
 
 pub mod actor;

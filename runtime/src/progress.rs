@@ -1,6 +1,6 @@
 //! What the launcher knows of a run while it goes ([`Progress`], from every role's status
 //! reports), how it shows it ([`Display`]), and what it says of the run at the end
-//! ([`Summary`]).
+//! ([`Summary`](rundir::summary::Summary)).
 
 use std::collections::{BTreeMap, HashSet};
 use std::io::IsTerminal;

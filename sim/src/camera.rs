@@ -4,7 +4,7 @@
 //! Each pixel is a vertical ray through its centre. For every convex part of every object the
 //! ray meets the part between the highest of its lower bounding planes and the lowest of its
 //! upper ones; the highest top over all parts wins the pixel. Only pixels under a part's
-//! footprint are visited; the footprint and the ray's top are [`footprint`]'s, shared with the
+//! footprint are visited; the footprint and the ray's top are `footprint`'s, shared with the
 //! tabletop's view tests. (parry's ray casts on hulls give false hits up to 2 cm outside the
 //! shape, and casting every pixel against the scene is an order of magnitude slower.)
 

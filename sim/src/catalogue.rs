@@ -4,7 +4,7 @@
 //! Each shape's body frame is the one the original test-case files pose: the origin at the
 //! centre of the shape's bounding box, and for every mesh but `2.obj` and `6.obj` the mesh's
 //! upright axis along body x (the original simulator shapes are the meshes rotated by
-//! R = [[0,0,1],[0,-1,0],[1,0,0]]). So `0.obj` (the roof) rests on its base when body -x
+//! R = `[[0,0,1],[0,-1,0],[1,0,0]]`). So `0.obj` (the roof) rests on its base when body -x
 //! points down. These frames were fixed by checking that every object in the original files
 //! rests flat on the table (see the arrangement tests).
 

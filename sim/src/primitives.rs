@@ -105,7 +105,7 @@ impl ActionOutcome {
 }
 
 /// How high above the table a push from pixel (`row`, `col`) lowers the closed pads' ends:
-/// [`PUSH_TOOL_ABOVE_SURFACE`] over the highest point of the window around the start, but
+/// `PUSH_TOOL_ABOVE_SURFACE` over the highest point of the window around the start, but
 /// not into the table.
 pub fn push_pad_ends_height(observation: &Heightmaps, row: usize, col: usize) -> f32 {
     let side = observation.side();

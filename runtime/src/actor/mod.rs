@@ -7,7 +7,7 @@
 //! its grasp; its end follows that grasp's step on the same topic.
 //!
 //! This file is the process: its weights, its loop and one tick over its environments;
-//! [`environment`] holds the episode rules of one scene (which goal, when a scene is new,
+//! `environment` holds the episode rules of one scene (which goal, when a scene is new,
 //! what an action completes).
 
 mod environment;

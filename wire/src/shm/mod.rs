@@ -87,7 +87,7 @@ pub struct StaleCleanup {
     /// Process ids of the run's live processes: a run with this id is still going.
     pub alive: Vec<i32>,
     /// Services of any run left locked by a process killed as it made them
-    /// ([`stale::remove_locked_services`]), removed.
+    /// (`stale::remove_locked_services`), removed.
     pub locked_services: usize,
 }
 
@@ -129,15 +129,15 @@ impl ShmTransport {
     /// before it starts or resumes a run.
     ///
     /// A process killed while it wrote one of its node's files leaves it half-made, and
-    /// iceoryx2 0.10's cleanup never removes such a file ([`stale::finish_half_made`]): it
+    /// iceoryx2 0.10's cleanup never removes such a file (`stale::finish_half_made`): it
     /// removes the node's details, then fails on the directory the file keeps, every time
     /// (and, without the details, warns that it takes its default config). A dead node's
     /// half-made files are marked finished first. A node already stuck that way, its
     /// details gone, is of no run anyone can name, so it is cleaned up whatever run asks, as
     /// iceoryx2 itself cleans up every dead node of any run when a node is created. So is
     /// a node killed before it had a monitor token, which iceoryx2 cannot find at all
-    /// ([`stale::remove_unmonitored`]), and a service whose creator was killed before it
-    /// wrote its static config ([`stale::remove_locked_services`]).
+    /// (`stale::remove_unmonitored`), and a service whose creator was killed before it
+    /// wrote its static config (`stale::remove_locked_services`).
     pub fn remove_stale(run_id: &str) -> Result<StaleCleanup, TransportError> {
         check_run_id(run_id)?;
         let config = config()?;
