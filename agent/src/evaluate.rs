@@ -220,8 +220,8 @@ fn test_run(
         updates: 0,
     };
     let mut pushes = 0;
+    // The grasps that picked nothing since the last push.
     let mut failed_grasps = Vec::new();
-    let mut grasp_failed_since_push = false;
     let mut before_push = None;
     while record.actions.len() < max_actions && !record.outcome().decided {
         let obs = camera.render(&tabletop);
@@ -238,8 +238,12 @@ fn test_run(
             landing_view: landing_view.as_ref(),
             goal,
             pushes_so_far: pushes,
-            failed_grasps: &failed_grasps,
-            grasp_failed_since_push,
+            failed_grasps: if config.avoid_failed_grasps {
+                &failed_grasps
+            } else {
+                &[]
+            },
+            grasp_failed_since_push: !failed_grasps.is_empty(),
             epsilon: 0.0,
             rng: &mut rng,
         };
@@ -265,15 +269,13 @@ fn test_run(
             Primitive::Push => {
                 pushes += 1;
                 failed_grasps.clear();
-                grasp_failed_since_push = false;
                 if config.grasp_after_idle_push {
                     before_push = Some(obs.clone());
                 }
             }
             Primitive::Grasp => {
                 pushes = 0;
-                grasp_failed_since_push |= outcome.grasped.is_none();
-                if config.avoid_failed_grasps && outcome.grasped.is_none() {
+                if outcome.grasped.is_none() {
                     failed_grasps.push(action);
                 }
             }
