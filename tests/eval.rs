@@ -203,6 +203,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "policy.grasp_landing_guard=0.002",
             "--set",
             "policy.squeeze_guard=0.5",
+            "--set",
+            "policy.view_edge_guard=true",
             "--avoid-failed-grasps",
             "--grasp-after-idle-push",
         ],
@@ -237,6 +239,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             Some(true)
         )
     );
+    assert_eq!(margined["view_edge_guard"].as_bool(), Some(true));
 
     // The authors' protocol: their rule and Q*, random scenes by the Q* alone, and learning
     // during the test. A stage-1 checkpoint trains its grasp net alone, so each grasp with a

@@ -53,7 +53,7 @@ pub(crate) struct EvalReport {
 pub(crate) fn print_table(report: &EvalReport) {
     let policy = &report.policy;
     println!(
-        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}{}{}",
+        "{}{} (stage checkpoint after {} updates), {} runs per case, seed {}, {:?}, {:?} rule, Q* {}{}{}{}{}{}{}{}{}{}{}{}{}",
         report.checkpoint,
         if report.ensemble.is_empty() {
             String::new()
@@ -101,6 +101,11 @@ pub(crate) fn print_table(report: &EvalReport) {
             .squeeze_guard
             .map(|friction| format!(", no grasp squeezing the goal out at friction {friction}"))
             .unwrap_or_default(),
+        if policy.view_edge_guard {
+            ", no grasp closing along a side of the view the goal reaches"
+        } else {
+            ""
+        },
         if report.avoid_failed_grasps {
             ", no failed grasp repeated"
         } else {

@@ -1,6 +1,6 @@
 //! The policy's settings: the paper's Q* rule and its push budget, exploration's rate, and
 //! the test-time masks (grasp margin, goal guard, landing guard and its finer view, push
-//! reach, free border, grasp landing guard, squeeze guard), each off or at the paper's value
+//! reach, free border, grasp landing guard, squeeze guard, view edge guard), each off or at the paper's value
 //! by default, each checked on load.
 
 use std::ops::Bound;
@@ -63,6 +63,12 @@ pub struct PolicyConfig {
     /// shoots out of the jaws. The pads' friction with an object is 0.355 (0.5 times 0.71,
     /// as Bullet combines them). `None`: every grasp is open, as in the paper.
     pub squeeze_guard: Option<f32>,
+    /// Grasps of a goal whose visible mask reaches a side of the workspace, with the jaws
+    /// closing more than 45 degrees off that side's normal, are not chosen
+    /// ([`crate::grasps_across_view_edge`]), where any grasp of the goal is left: the goal's
+    /// hidden part is squeezed across the side, out of view. `false`: every grasp is open,
+    /// as in the paper.
+    pub view_edge_guard: bool,
     /// Pushes whose swept band passes farther than this (metres) from the goal are neither
     /// chosen nor drawn when exploring ([`crate::pushes_near_goal`]): they cannot change
     /// the goal's surroundings. `None`: every push start is open, as in the paper.
@@ -112,6 +118,7 @@ impl Default for PolicyConfig {
             landing_subpixels: 1,
             grasp_landing_guard: None,
             squeeze_guard: None,
+            view_edge_guard: false,
             push_reach: None,
             free_border: None,
             free_border_once: false,

@@ -1,6 +1,6 @@
 //! Where each primitive may act, as masks the argmax and the exploration draw both read: the
 //! grasp region (the goal mask less its rim), narrowed to the grasps the policy may choose
-//! (no failed grasp again, the grasp landing guard, the squeeze guard), and the push region (the valid push
+//! (no failed grasp again, the grasp landing guard, the squeeze guard, the view edge guard), and the push region (the valid push
 //! starts, narrowed by the goal guard, the push reach and the landing guard in that order).
 
 use sim::{Action, Heightmaps, ObjectId, ROTATIONS};
@@ -9,6 +9,7 @@ use crate::config::PolicyConfig;
 use crate::goal_guard::pushes_keeping_goal;
 use crate::grasp_repeats::grasps_not_repeating;
 use crate::grasp_squeeze::grasps_holding_goal;
+use crate::grasp_view_edge::grasps_across_view_edge;
 use crate::jaws_landing::{grasps_landing_clear, pushes_landing_clear, pushes_landing_clear_of};
 use crate::push_reach::pushes_near_goal;
 
@@ -38,8 +39,10 @@ pub fn grasp_region(obs: &Heightmaps, goal: ObjectId, margin: f32) -> Vec<bool> 
 /// it: the [`grasp_region`] less the grasps near `failed` ones ([`grasps_not_repeating`]);
 /// under the config's `grasp_landing_guard`, of those, the ones whose open jaws come down
 /// clear of every object ([`grasps_landing_clear`]); under its `squeeze_guard`, of those,
-/// the ones that do not squeeze the goal out of the jaws ([`grasps_holding_goal`]). A mask
-/// that would leave no grasp is not applied, nor any after it.
+/// the ones that do not squeeze the goal out of the jaws ([`grasps_holding_goal`]); under
+/// its `view_edge_guard`, of those, the ones closing across the sides of the workspace the
+/// goal reaches ([`grasps_across_view_edge`]). A mask that would leave no grasp is not
+/// applied, nor any after it.
 pub fn grasp_choices(
     obs: &Heightmaps,
     goal: ObjectId,
@@ -54,6 +57,9 @@ pub fn grasp_choices(
         config
             .squeeze_guard
             .map(|friction| grasps_holding_goal(obs, goal, friction)),
+        config
+            .view_edge_guard
+            .then(|| grasps_across_view_edge(obs, goal)),
     ]
     .into_iter()
     .flatten()
