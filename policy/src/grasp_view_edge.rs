@@ -18,17 +18,18 @@ pub fn grasps_across_view_edge(obs: &Heightmaps, goal: ObjectId) -> Vec<bool> {
     let side = obs.side();
     let mask = obs.goal_mask(goal);
     let last = side - 1;
-    let reaches = |on_side: &dyn Fn(usize, usize) -> bool| {
-        (0..side * side).any(|i| mask[i] && on_side(i / side, i % side))
-    };
-    // The normals, as (x, y) along columns and rows, of the sides the goal reaches.
-    let normals: Vec<[f32; 2]> = [
-        (reaches(&|_, c| c == 0 || c == last), [1.0, 0.0]),
-        (reaches(&|r, _| r == 0 || r == last), [0.0, 1.0]),
-    ]
-    .into_iter()
-    .filter_map(|(cut, normal)| cut.then_some(normal))
-    .collect();
+    // Whether the mask reaches a left or right side (normal along x, the columns) and a
+    // top or bottom one (normal along y, the rows).
+    let (mut on_x_side, mut on_y_side) = (false, false);
+    for i in (0..side * side).filter(|&i| mask[i]) {
+        let (row, col) = (i / side, i % side);
+        on_x_side |= col == 0 || col == last;
+        on_y_side |= row == 0 || row == last;
+    }
+    let normals: Vec<[f32; 2]> = [(on_x_side, [1.0, 0.0]), (on_y_side, [0.0, 1.0])]
+        .into_iter()
+        .filter_map(|(reached, normal)| reached.then_some(normal))
+        .collect();
     (0..ROTATIONS)
         .flat_map(|rotation| {
             let angle = rotation_angle(rotation);
