@@ -1,7 +1,7 @@
 //! The policy's settings: the paper's Q* rule and its push budget, exploration's rate, and
 //! the test-time masks (grasp margin, goal guard, landing guard and its finer view, push
-//! reach, free border, grasp landing guard, squeeze guard, view edge guard), each off or at the paper's value
-//! by default, each checked on load.
+//! reach, free border, grasp landing guard, squeeze guard, view edge guard), each off or at
+//! the paper's value by default, each checked on load.
 
 use std::ops::Bound;
 

@@ -19,13 +19,9 @@ pub fn grasps_across_view_edge(obs: &Heightmaps, goal: ObjectId) -> Vec<bool> {
     let mask = obs.goal_mask(goal);
     let last = side - 1;
     // Whether the mask reaches a left or right side (normal along x, the columns) and a
-    // top or bottom one (normal along y, the rows).
-    let (mut on_x_side, mut on_y_side) = (false, false);
-    for i in (0..side * side).filter(|&i| mask[i]) {
-        let (row, col) = (i / side, i % side);
-        on_x_side |= col == 0 || col == last;
-        on_y_side |= row == 0 || row == last;
-    }
+    // top or bottom one (normal along y, the rows): only the border pixels can tell.
+    let on_x_side = (0..side).any(|row| mask[row * side] || mask[row * side + last]);
+    let on_y_side = (0..side).any(|col| mask[col] || mask[last * side + col]);
     let normals: Vec<[f32; 2]> = [(on_x_side, [1.0, 0.0]), (on_y_side, [0.0, 1.0])]
         .into_iter()
         .filter_map(|(reached, normal)| reached.then_some(normal))

@@ -1,7 +1,8 @@
 //! Where each primitive may act, as masks the argmax and the exploration draw both read: the
 //! grasp region (the goal mask less its rim), narrowed to the grasps the policy may choose
-//! (no failed grasp again, the grasp landing guard, the squeeze guard, the view edge guard), and the push region (the valid push
-//! starts, narrowed by the goal guard, the push reach and the landing guard in that order).
+//! (no failed grasp again, the grasp landing guard, the squeeze guard, the view edge
+//! guard), and the push region (the valid push starts, narrowed by the goal guard, the push
+//! reach and the landing guard in that order).
 
 use sim::{Action, Heightmaps, ObjectId, ROTATIONS};
 
