@@ -240,6 +240,32 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
         )
     );
     assert_eq!(margined["view_edge_guard"].as_bool(), Some(true));
+    // The shipped test-time settings as one file, and --set on top of it.
+    let file: toml::Table =
+        toml::from_str(&std::fs::read_to_string("configs/test-time.toml").unwrap()).unwrap();
+    let shipped = eval(
+        "1",
+        &[
+            "--settings",
+            "configs/test-time.toml",
+            "--set",
+            "policy.goal_guard=0.03",
+        ],
+    );
+    let policy = file["policy"].as_table().unwrap();
+    assert!(policy.len() >= 8, "{policy:?}");
+    for (key, value) in policy {
+        let got = &shipped[key.as_str()];
+        match value {
+            toml::Value::Float(want) => {
+                let want = if key == "goal_guard" { 0.03 } else { *want };
+                let got = got.as_f64().unwrap_or(f64::NAN);
+                assert!((got - want).abs() < 1e-6, "{key}: {got}, not {want}");
+            }
+            toml::Value::Boolean(want) => assert_eq!(got.as_bool(), Some(*want), "{key}"),
+            other => panic!("{key} = {other}: a kind of value this test does not read"),
+        }
+    }
 
     // The authors' protocol: their rule and Q*, random scenes by the Q* alone, and learning
     // during the test. A stage-1 checkpoint trains its grasp net alone, so each grasp with a
@@ -405,6 +431,24 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
     let err = refused(&["--set", "policy.grasp_margin=-0.01"]);
     assert!(
         err.contains("config.toml with --set") && err.contains("policy.grasp_margin"),
+        "{err}"
+    );
+    // A settings file is refused naming the file: with a bad value, the field; with bad
+    // TOML, the line.
+    let bad_value = logs.path().join("bad-value.toml");
+    std::fs::write(&bad_value, "[policy]\nsqueeze_guard = -1.0\n").unwrap();
+    let err = refused(&["--settings", bad_value.to_str().unwrap()]);
+    assert!(
+        err.contains("--settings")
+            && err.contains("bad-value.toml")
+            && err.contains("squeeze_guard"),
+        "{err}"
+    );
+    let bad_toml = logs.path().join("bad-toml.toml");
+    std::fs::write(&bad_toml, "[policy]\ngoal_guard = \n").unwrap();
+    let err = refused(&["--settings", bad_toml.to_str().unwrap()]);
+    assert!(
+        err.contains("bad-toml.toml") && err.contains("line 2"),
         "{err}"
     );
     // A goal-agnostic test has no labels to learn from.

@@ -133,7 +133,7 @@ fn the_stages_run_in_order_from_each_others_checkpoints() {
     assert!(second.join("summary.json").exists());
     assert!(
         said.contains(&format!(
-            "--checkpoint {} --ensemble {}",
+            "--checkpoint {} --ensemble {} --settings configs/test-time.toml",
             dir.join("stage3/checkpoint").display(),
             second.join("checkpoint").display()
         )),

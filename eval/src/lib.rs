@@ -25,7 +25,7 @@ use serde::Serialize;
 
 use rundir::backend::{self, Backend};
 use rundir::config::RunConfig;
-use rundir::settings::{merge, parse_setting};
+use rundir::settings::{merge, parse_setting, read_settings};
 use rundir::{load_agent, named_arrangements};
 
 use table::{CaseRow, EvalReport, print_table, print_why};
@@ -51,6 +51,10 @@ pub struct EvalArgs {
     /// Repeatable; it changes --checkpoint's config, whose policy acts.
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_setting)]
     set: Vec<toml::Table>,
+    /// A TOML file of settings that replace the config's, as --set does (any --set goes on
+    /// top): `configs/test-time.toml` holds the test-time settings Table 1 is measured with.
+    #[arg(long, value_name = "FILE")]
+    settings: Option<PathBuf>,
     /// The backend the nets act on, `cpu` or `wgpu` (default: the config's
     /// `backend.actors`); for --ensemble's nets too.
     #[arg(long)]
@@ -201,10 +205,16 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 }
 
 /// The tested nets (`--checkpoint`, and each `--ensemble` member as one more vote) and their
-/// run's config with `--backend`, `--set` and `--authors-rule` applied; the updates they had.
+/// run's config with `--backend`, `--settings`, `--set` and `--authors-rule` applied; the
+/// updates they had.
 fn load_nets(args: &EvalArgs, mode: policy::Mode) -> Result<(RunConfig, Agent, u64)> {
     let on_backend = args.backend.map(backend::setting).unwrap_or_default();
     let mut set = on_backend.clone();
+    let mut by = "--set".to_string();
+    if let Some(path) = &args.settings {
+        merge(&mut set, &read_settings(path)?);
+        by = format!("--settings {} and --set", path.display());
+    }
     for setting in &args.set {
         merge(&mut set, setting);
     }
@@ -220,9 +230,10 @@ fn load_nets(args: &EvalArgs, mode: policy::Mode) -> Result<(RunConfig, Agent, u
         }
     }
     let (config, mut agent, updates) =
-        load_agent(&args.checkpoint, args.config.as_deref(), &set, mode)?;
+        load_agent(&args.checkpoint, args.config.as_deref(), &set, &by, mode)?;
     for checkpoint in &args.ensemble {
-        let (member_config, member, _) = load_agent(checkpoint, None, &on_backend, mode)?;
+        let (member_config, member, _) =
+            load_agent(checkpoint, None, &on_backend, "--backend", mode)?;
         if config_hash(&member_config.net) != config_hash(&config.net)
             || member_config.side() != config.side()
         {

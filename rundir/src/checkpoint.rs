@@ -15,11 +15,12 @@ use crate::settings::load_with;
 
 /// A checkpoint's nets as an agent in `mode`, with the run config they were trained with
 /// (`config`, else `config.toml` in the checkpoint's run directory) with `set` merged into
-/// it, and their update count.
+/// it (`by`: what gave the settings, for their errors), and their update count.
 pub fn load_agent(
     checkpoint: &Path,
     config: Option<&Path>,
     set: &toml::Table,
+    by: &str,
     mode: policy::Mode,
 ) -> Result<(RunConfig, Agent, u64)> {
     let config_path = match config {
@@ -29,7 +30,7 @@ pub fn load_agent(
             .map(|run| RunDir::new(run).config())
             .context("--checkpoint has no parent directory; name the config with --config")?,
     };
-    let (config, _) = load_with(&config_path, set, "--set")?;
+    let (config, _) = load_with(&config_path, set, by)?;
     let SavedNets {
         manifest, weights, ..
     } = Checkpoint::at(checkpoint)

@@ -1,5 +1,6 @@
 //! Settings that replace a run config's own: dotted keys with TOML values, from the command
-//! line (`--set learning.gamma=0.9`) or a pipeline file's `[set]` table.
+//! line (`--set learning.gamma=0.9`), a pipeline file's `[set]` table or a settings file
+//! (`eval --settings configs/test-time.toml`).
 
 use std::path::Path;
 
@@ -19,6 +20,15 @@ pub fn parse_setting(arg: &str) -> Result<toml::Table, String> {
             e.message()
         )
     })
+}
+
+/// The settings in the TOML file `path`, as `--set` gives them (a dotted key is a nested
+/// table), e.g. `configs/test-time.toml`. Errors name the file, and the line where the
+/// TOML is bad.
+pub fn read_settings(path: &Path) -> Result<toml::Table> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// Sets every key of `set` in `table`; where both hold a table, merges into it.

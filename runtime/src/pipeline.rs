@@ -211,7 +211,7 @@ pub fn run(args: &PipelineArgs) -> Result<()> {
             .map(|c| format!(" --ensemble {}", c.display()))
             .collect();
         println!(
-            "test it: pushgrasp eval --checkpoint {}{ensemble} --arrangements configs/arrangements --random 30",
+            "test it: pushgrasp eval --checkpoint {}{ensemble} --settings configs/test-time.toml --arrangements configs/arrangements --random 30",
             first.display()
         );
     }

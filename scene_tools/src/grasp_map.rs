@@ -187,6 +187,7 @@ fn measure(args: &GraspsArgs) -> Result<Vec<CaseGrasps>> {
                 checkpoint,
                 args.config.as_deref(),
                 &toml::Table::new(),
+                "no settings",
                 policy::Mode::GraspOnly,
             )?;
             (config.sim, Some(agent))
