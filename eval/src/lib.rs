@@ -25,7 +25,7 @@ use serde::Serialize;
 
 use rundir::backend::{self, Backend};
 use rundir::config::RunConfig;
-use rundir::settings::{merge, parse_setting, read_settings};
+use rundir::settings::{merge, parse_setting, read_table};
 use rundir::{load_agent, named_arrangements};
 
 use table::{CaseRow, EvalReport, print_table, print_why};
@@ -210,11 +210,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 fn load_nets(args: &EvalArgs, mode: policy::Mode) -> Result<(RunConfig, Agent, u64)> {
     let on_backend = args.backend.map(backend::setting).unwrap_or_default();
     let mut set = on_backend.clone();
-    let mut by = "--set".to_string();
-    if let Some(path) = &args.settings {
-        merge(&mut set, &read_settings(path)?);
-        by = format!("--settings {} and --set", path.display());
-    }
+    let by = match &args.settings {
+        Some(path) => {
+            merge(&mut set, &read_table(path)?);
+            format!("--settings {} and any --set", path.display())
+        }
+        None => "--set".to_string(),
+    };
     for setting in &args.set {
         merge(&mut set, setting);
     }

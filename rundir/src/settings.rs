@@ -22,10 +22,10 @@ pub fn parse_setting(arg: &str) -> Result<toml::Table, String> {
     })
 }
 
-/// The settings in the TOML file `path`, as `--set` gives them (a dotted key is a nested
-/// table), e.g. `configs/test-time.toml`. Errors name the file, and the line where the
-/// TOML is bad.
-pub fn read_settings(path: &Path) -> Result<toml::Table> {
+/// The TOML file `path` as a table: a config before settings merge into it, or a settings
+/// file (`eval --settings configs/test-time.toml`), whose tables give dotted keys as
+/// `--set` does. Errors name the file, and the line where the TOML is bad.
+pub fn read_table(path: &Path) -> Result<toml::Table> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
@@ -61,10 +61,7 @@ pub fn load_with(
 
 /// The text of the config file `config` with `set` merged into it.
 fn resolve(config: &Path, set: &toml::Table) -> Result<String> {
-    let text =
-        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
-    let mut table: toml::Table =
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
+    let mut table = read_table(config)?;
     merge(&mut table, set);
     Ok(toml::to_string(&table)?)
 }
