@@ -200,6 +200,8 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
             "--set",
             "policy.landing_subpixels=3",
             "--set",
+            "policy.landing_retreat=0.008",
+            "--set",
             "policy.grasp_landing_guard=0.002",
             "--set",
             "policy.squeeze_guard=0.5",
@@ -240,6 +242,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
         )
     );
     assert_eq!(margined["view_edge_guard"].as_bool(), Some(true));
+    assert_eq!(margined["landing_retreat"].as_f64(), Some(0.008));
     // The shipped test-time settings as one file, and --set on top of it.
     let file: toml::Table =
         toml::from_str(&std::fs::read_to_string("configs/test-time.toml").unwrap()).unwrap();
@@ -263,6 +266,7 @@ fn eval_scores_a_checkpoint_the_same_way_for_the_same_seed() {
                 assert!((got - want).abs() < 1e-6, "{key}: {got}, not {want}");
             }
             toml::Value::Boolean(want) => assert_eq!(got.as_bool(), Some(*want), "{key}"),
+            toml::Value::Integer(want) => assert_eq!(got.as_i64(), Some(*want), "{key}"),
             other => panic!("{key} = {other}: a kind of value this test does not read"),
         }
     }

@@ -78,9 +78,13 @@ pub(crate) fn print_table(report: &EvalReport) {
         policy
             .landing_guard
             .map(|margin| {
-                let seen = match policy.landing_subpixels {
-                    1 => String::new(),
-                    finer => format!(" seen {finer}x finer"),
+                let seen = match (policy.landing_subpixels, policy.landing_retreat) {
+                    (1, _) => String::new(),
+                    (finer, None) => format!(" seen {finer}x finer"),
+                    (finer, Some(back)) => format!(
+                        ", pushes onto the goal seen {finer}x finer started up to {} mm back",
+                        1000.0 * back
+                    ),
                 };
                 format!(
                     ", jaws landing clear of objects by {} mm{seen}",

@@ -1,7 +1,7 @@
 //! The policy's settings: the paper's Q* rule and its push budget, exploration's rate, and
-//! the test-time masks (grasp margin, goal guard, landing guard and its finer view, push
-//! reach, free border, grasp landing guard, squeeze guard, view edge guard), each off or at
-//! the paper's value by default, each checked on load.
+//! the test-time masks (grasp margin, goal guard, landing guard, its finer view and its
+//! retreat, push reach, free border, grasp landing guard, squeeze guard, view edge guard),
+//! each off or at the paper's value by default, each checked on load.
 
 use std::ops::Bound;
 
@@ -52,6 +52,12 @@ pub struct PolicyConfig {
     /// surface at its centre, and the goal's corner can reach under the jaws in a pixel
     /// whose centre is on the table. 1: the observation alone.
     pub landing_subpixels: usize,
+    /// Under the landing guard seen finer: a chosen push whose jaws come down on the goal
+    /// as the finer view sees it is not closed but started farther back along its own
+    /// direction, at the nearest start (at most this far, metres) the push region holds
+    /// and the finer view sees clear of the goal ([`crate::push_start_clear_of_goal`]);
+    /// as chosen where there is none. `None`: the finer view closes such pushes.
+    pub landing_retreat: Option<f32>,
     /// Grasps whose open jaws, widened by this margin (metres), would come down on an
     /// object, the goal's top included, are not chosen ([`crate::grasps_landing_clear`]),
     /// where any grasp of the goal is left: held up on it, the jaws close above the goal.
@@ -116,6 +122,7 @@ impl Default for PolicyConfig {
             goal_guard: None,
             landing_guard: None,
             landing_subpixels: 1,
+            landing_retreat: None,
             grasp_landing_guard: None,
             squeeze_guard: None,
             view_edge_guard: false,
@@ -148,6 +155,17 @@ impl PolicyConfig {
                 "landing_subpixels",
                 format!("{} is even: it must be odd", self.landing_subpixels),
             ));
+        }
+        if let Some(distance) = self.landing_retreat {
+            ConfigError::check_range("landing_retreat", distance, 0.0..)?;
+            if self.landing_guard.is_none() || self.landing_subpixels == 1 {
+                return Err(ConfigError::new(
+                    "landing_retreat",
+                    "needs the landing guard seen finer (landing_guard set, landing_subpixels \
+                     above 1)"
+                        .to_string(),
+                ));
+            }
         }
         if let Some(margin) = self.grasp_landing_guard {
             ConfigError::check_range("grasp_landing_guard", margin, 0.0..)?;

@@ -17,6 +17,7 @@ pub mod jaws_landing;
 pub mod label;
 pub mod policy;
 pub mod push_reach;
+pub mod push_retreat;
 pub mod push_sweep;
 pub mod qmaps;
 pub mod regions;
@@ -32,6 +33,7 @@ pub use jaws_landing::{grasps_landing_clear, pushes_landing_clear, pushes_landin
 pub use label::{grasp_label, push_label};
 pub use policy::{Decision, Mode, PolicyInput, Reason, choose, trial_grasps};
 pub use push_reach::pushes_near_goal;
+pub use push_retreat::push_start_clear_of_goal;
 pub use qmaps::QMaps;
 pub use regions::{
     PUSH_START_MAX_HEIGHT, grasp_choices, grasp_region, push_region, valid_push_starts,

@@ -14,6 +14,8 @@ use sim::{Action, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::config::{PolicyConfig, Rule};
 use crate::error::PolicyError;
+use crate::jaws_landing::pushes_landing_clear_of;
+use crate::push_retreat::push_start_clear_of_goal;
 use crate::qmaps::QMaps;
 use crate::regions::{grasp_choices, grasp_region, push_region};
 
@@ -122,8 +124,9 @@ impl Decision {
 /// border ring is free, unless under `free_border_once` a grasp has failed since the last
 /// push). The primitive goes to the argmax of its Q maps
 /// over its allowed pixels ([`grasp_choices`], [`push_region`]) and all rotations, or,
-/// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set.
-/// Deterministic given `rng`.
+/// with probability `epsilon`, to a pixel and rotation drawn uniformly from the same set;
+/// under `landing_retreat`, a push whose jaws would come down on the goal starts farther
+/// back ([`push_start_clear_of_goal`]). Deterministic given `rng`.
 ///
 /// Errors if a Q map's shape does not match the observation and [`ROTATIONS`], if a
 /// primitive's Q values are NaN everywhere it may act, or if `epsilon` is not in [0, 1].
@@ -211,6 +214,22 @@ pub fn choose(
         uniform_draw(&allowed, obs.side(), rng)
     } else {
         (best.1, best.2, best.3)
+    };
+    let retreat = (
+        config.landing_retreat,
+        config.landing_guard,
+        input.landing_view,
+    );
+    let [row, col] = match (primitive, retreat) {
+        (Primitive::Push, (Some(distance), Some(margin), Some(view))) => push_start_clear_of_goal(
+            rotation,
+            [row, col],
+            &allowed,
+            &pushes_landing_clear_of(obs, view, input.goal, margin),
+            obs.side(),
+            distance / obs.grid.pixel_size(),
+        ),
+        _ => [row, col],
     };
     Ok(Decision {
         action: Action {

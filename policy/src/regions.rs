@@ -159,7 +159,8 @@ pub fn valid_push_starts(obs: &Heightmaps) -> Vec<bool> {
 /// `push_reach`, of those, the ones that pass near the goal ([`pushes_near_goal`]); under
 /// its `landing_guard`, of those, the ones whose jaws come down clear of every object
 /// ([`pushes_landing_clear`]) and, given a `landing_view` (the scene rendered finer), clear
-/// of the goal as it sees it ([`pushes_landing_clear_of`]). A mask that would leave no push
+/// of the goal as it sees it ([`pushes_landing_clear_of`]; not under `landing_retreat`,
+/// which moves the chosen push instead). A mask that would leave no push
 /// is not applied, nor any after it: the landing guard comes last so that, where it would
 /// close every push near a goal packed in on all sides, the pushes that reach the goal stay
 /// open rather than pushes in the air, which change nothing.
@@ -181,11 +182,12 @@ pub fn push_region(
         config.landing_guard.map(|margin| {
             let clear = pushes_landing_clear(obs, margin);
             match landing_view {
-                None => clear,
-                Some(view) => (clear.iter())
+                // Under a retreat the finer view moves the chosen push instead.
+                Some(view) if config.landing_retreat.is_none() => (clear.iter())
                     .zip(pushes_landing_clear_of(obs, view, goal, margin))
                     .map(|(&a, b)| a && b)
                     .collect(),
+                _ => clear,
             }
         }),
     ]

@@ -6,7 +6,8 @@
 //! neighbour's top is closed, and in the simulator it picks nothing; turned a quarter it is
 //! open and picks the goal; the policy under the grasp guard passes over a closed grasp.
 //! Seen finer, a push whose jaws come down on the goal's corner between pixel centres is
-//! closed, which the observation's pixels miss, and the policy passes over it.
+//! closed, which the observation's pixels miss, and the policy passes over it, or under a
+//! retreat starts it a pixel back.
 
 mod closed_push;
 mod common;
@@ -15,7 +16,7 @@ mod masks;
 
 use closed_push::passes_over;
 use grasp_choice::chosen_grasp;
-use masks::{cubes, index, push};
+use masks::{chosen, cubes, index, push};
 use sim::rapier3d::prelude::{Pose, Rotation, Vector};
 use sim::workspace::CENTRE;
 use sim::{
@@ -120,6 +121,49 @@ fn under_a_finer_view_the_policy_passes_over_a_push_onto_the_goal_s_corner() {
         &ONTO_THE_CORNER,
         &guarded,
     );
+}
+
+#[test]
+fn under_a_retreat_the_push_onto_the_goal_s_corner_starts_a_pixel_back() {
+    let (obs, view) = corner_under_the_jaws(0.0015);
+    let retreating = PolicyConfig {
+        landing_guard: Some(0.0),
+        landing_subpixels: 5,
+        landing_retreat: Some(0.012),
+        ..PolicyConfig::default()
+    };
+    // Rotation 0 pushes towards +x: a pixel back is a column lower.
+    let back = Action {
+        col: ONTO_THE_CORNER.col - 1,
+        ..ONTO_THE_CORNER
+    };
+    assert_eq!(chosen_push(&obs, Some(&view), &retreating), back);
+    assert!(pushes_landing_clear_of(&obs, &view, GOAL, 0.0)[index(&obs, &back)]);
+    // Without the finer view nothing is seen to move the push.
+    let coarse = PolicyConfig {
+        landing_retreat: None,
+        landing_subpixels: 1,
+        ..retreating
+    };
+    assert_eq!(chosen_push(&obs, None, &coarse), ONTO_THE_CORNER);
+    // A push clear of the goal is made as chosen.
+    let (obs, view) = corner_under_the_jaws(-0.001);
+    assert_eq!(chosen_push(&obs, Some(&view), &retreating), ONTO_THE_CORNER);
+}
+
+/// The policy's greedy push towards the corner scene's peak, [`ONTO_THE_CORNER`].
+fn chosen_push(obs: &Heightmaps, view: Option<&Heightmaps>, policy: &PolicyConfig) -> Action {
+    let push_length = SimConfig::default().push_length;
+    chosen(
+        obs,
+        view,
+        GOAL,
+        push_length,
+        &ONTO_THE_CORNER,
+        policy,
+        0.0,
+        0,
+    )
 }
 
 #[test]

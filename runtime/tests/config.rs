@@ -149,6 +149,7 @@ fn a_field_out_of_its_part_s_range_is_refused_naming_the_file_and_the_field() {
         ("policy.landing_guard", "-0.004"),
         ("policy.landing_subpixels", "4"),
         ("policy.landing_subpixels", "11"),
+        ("policy.landing_retreat", "0.008"),
         ("policy.grasp_landing_guard", "-0.004"),
         ("policy.squeeze_guard", "-0.3"),
         ("policy.push_reach", "-0.04"),
