@@ -51,6 +51,33 @@ pub fn pushes_landing_clear_of(
     goal: ObjectId,
     margin: f32,
 ) -> Vec<bool> {
+    pushes_clear_of_where(obs, view, goal, margin, |_| true)
+}
+
+/// [`pushes_landing_clear_of`] judged only at the pixels `starts` names (at every rotation),
+/// open everywhere else: the few starts a retreat weighs
+/// ([`push_start_clear_of_goal`](crate::push_start_clear_of_goal)), without the whole map.
+pub fn pushes_landing_clear_of_at(
+    obs: &Heightmaps,
+    view: &Heightmaps,
+    goal: ObjectId,
+    margin: f32,
+    starts: &[[usize; 2]],
+) -> Vec<bool> {
+    let side = obs.side();
+    pushes_clear_of_where(obs, view, goal, margin, |i| {
+        starts.contains(&[i / side, i % side])
+    })
+}
+
+/// Pushes landing clear of `goal` on `view`, judged at the pixels `judged` holds.
+fn pushes_clear_of_where(
+    obs: &Heightmaps,
+    view: &Heightmaps,
+    goal: ObjectId,
+    margin: f32,
+    judged: impl Fn(usize) -> bool,
+) -> Vec<bool> {
     landing_clear(
         obs,
         view,
@@ -58,7 +85,7 @@ pub fn pushes_landing_clear_of(
         Jaws::Closed,
         push_pad_ends_height,
         margin,
-        |_| true,
+        judged,
     )
 }
 

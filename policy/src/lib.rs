@@ -29,7 +29,9 @@ pub use goal_guard::pushes_keeping_goal;
 pub use grasp_repeats::{REPEAT_RADIUS, grasps_not_repeating};
 pub use grasp_squeeze::grasps_holding_goal;
 pub use grasp_view_edge::grasps_across_view_edge;
-pub use jaws_landing::{grasps_landing_clear, pushes_landing_clear, pushes_landing_clear_of};
+pub use jaws_landing::{
+    grasps_landing_clear, pushes_landing_clear, pushes_landing_clear_of, pushes_landing_clear_of_at,
+};
 pub use label::{grasp_label, push_label};
 pub use policy::{Decision, Mode, PolicyInput, Reason, choose, trial_grasps};
 pub use push_reach::pushes_near_goal;

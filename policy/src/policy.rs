@@ -14,7 +14,6 @@ use sim::{Action, Heightmaps, ObjectId, Primitive, ROTATIONS};
 
 use crate::config::{PolicyConfig, Rule};
 use crate::error::PolicyError;
-use crate::jaws_landing::pushes_landing_clear_of;
 use crate::push_retreat::push_start_clear_of_goal;
 use crate::qmaps::QMaps;
 use crate::regions::{grasp_choices, grasp_region, push_region};
@@ -222,12 +221,14 @@ pub fn choose(
     );
     let [row, col] = match (primitive, retreat) {
         (Primitive::Push, (Some(distance), Some(margin), Some(view))) => push_start_clear_of_goal(
+            obs,
+            view,
+            input.goal,
+            margin,
             rotation,
             [row, col],
             &allowed,
-            &pushes_landing_clear_of(obs, view, input.goal, margin),
-            obs.side(),
-            distance / obs.grid.pixel_size(),
+            distance,
         ),
         _ => [row, col],
     };

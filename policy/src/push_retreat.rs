@@ -7,42 +7,56 @@
 //! along its own direction, at the nearest start clear of the goal: the same push, meeting
 //! the goal a few millimetres later.
 
-use sim::{ROTATIONS, rotation_angle};
+use std::iter::once;
 
-/// Where the push at `rotation` from `[row, col]` starts instead: itself where
-/// `clear_of_goal` holds it, else the first start a whole number of pixels back along the
-/// push, at most `distance` pixels, that both `allowed` (the push region: one `side * side`
-/// mask for every rotation, or one per rotation) and `clear_of_goal` (one per rotation) hold;
-/// itself where none does.
+use sim::{Heightmaps, ObjectId, ROTATIONS, rotation_angle};
+
+use crate::jaws_landing::pushes_landing_clear_of_at;
+
+/// Where the push at `rotation` from `[row, col]` starts instead: itself where its closed
+/// jaws, widened by `margin`, come down clear of `goal` as `view` (the scene rendered finer)
+/// sees it; else the first start a whole number of pixels back along the push, at most
+/// `distance` metres, that `allowed` (the push region: one `side * side` mask for every
+/// rotation, or one per rotation) holds and whose jaws come down clear of the goal; itself
+/// where none does.
+#[allow(clippy::too_many_arguments)]
 pub fn push_start_clear_of_goal(
+    obs: &Heightmaps,
+    view: &Heightmaps,
+    goal: ObjectId,
+    margin: f32,
     rotation: u8,
     [row, col]: [usize; 2],
     allowed: &[bool],
-    clear_of_goal: &[bool],
-    side: usize,
     distance: f32,
 ) -> [usize; 2] {
+    let side = obs.side();
     let pixels = side * side;
-    assert_eq!(clear_of_goal.len(), ROTATIONS as usize * pixels);
-    let at = |[row, col]: [usize; 2]| rotation as usize * pixels + row * side + col;
-    if clear_of_goal[at([row, col])] {
-        return [row, col];
-    }
-    let per_rotation = allowed.len() == ROTATIONS as usize * pixels;
-    let open = |start: [usize; 2]| {
-        let i = start[0] * side + start[1];
-        clear_of_goal[at(start)] && allowed[if per_rotation { at(start) } else { i }]
+    let map = if allowed.len() == ROTATIONS as usize * pixels {
+        rotation as usize * pixels
+    } else {
+        0
     };
     let angle = rotation_angle(rotation);
     let (along_col, along_row) = (angle.cos(), angle.sin());
-    (1..=distance.floor() as usize)
-        .filter_map(|back| {
-            let back = back as f32;
-            let r = row as f32 - (back * along_row).round();
-            let c = col as f32 - (back * along_col).round();
-            let inside = |a: f32| (0.0..side as f32).contains(&a);
-            (inside(r) && inside(c)).then_some([r as usize, c as usize])
-        })
-        .find(|&start| open(start))
+    let backs = (1..=(distance / obs.grid.pixel_size()).floor() as usize).filter_map(|back| {
+        let back = back as f32;
+        let r = row as f32 - (back * along_row).round();
+        let c = col as f32 - (back * along_col).round();
+        let inside = |a: f32| (0.0..side as f32).contains(&a);
+        (inside(r) && inside(c)).then_some([r as usize, c as usize])
+    });
+    let starts: Vec<[usize; 2]> = once([row, col])
+        .chain(backs.filter(|&[r, c]| allowed[map + r * side + c]))
+        .collect();
+    let clear = pushes_landing_clear_of_at(obs, view, goal, margin, &starts);
+    let clear_at = |[r, c]: [usize; 2]| clear[rotation as usize * pixels + r * side + c];
+    if clear_at([row, col]) {
+        return [row, col];
+    }
+    starts[1..]
+        .iter()
+        .copied()
+        .find(|&start| clear_at(start))
         .unwrap_or([row, col])
 }
