@@ -352,6 +352,145 @@ fn adams_kernel_steps_as_burns_adam_on_the_cpu() {
     assert!(d.max_rel <= 1e-5, "{d:?}");
 }
 
+/// A convolution's weight gradient on the host, from `[n, h, w, c]` values: `[o, k, k, c]`.
+struct WeightGradCase {
+    batch: usize,
+    height: usize,
+    width: usize,
+    channels: usize,
+    out_channels: usize,
+    stride: usize,
+    padding: usize,
+    dilation: usize,
+}
+
+impl WeightGradCase {
+    const KERNEL: usize = 3;
+
+    fn out_side(&self, side: usize) -> usize {
+        (side + 2 * self.padding - self.dilation * (Self::KERNEL - 1) - 1) / self.stride + 1
+    }
+
+    fn on_host(&self, input: &[f32], grad: &[f32]) -> Vec<f32> {
+        let (k, c, o) = (Self::KERNEL, self.channels, self.out_channels);
+        let (oh, ow) = (self.out_side(self.height), self.out_side(self.width));
+        let mut weight_grad = vec![0.0; o * k * k * c];
+        for n in 0..self.batch {
+            for (oy, ox) in (0..oh).flat_map(|y| (0..ow).map(move |x| (y, x))) {
+                for (ky, kx) in (0..k).flat_map(|y| (0..k).map(move |x| (y, x))) {
+                    let y = (oy * self.stride + ky * self.dilation).checked_sub(self.padding);
+                    let x = (ox * self.stride + kx * self.dilation).checked_sub(self.padding);
+                    let (Some(y), Some(x)) = (y, x) else { continue };
+                    if y >= self.height || x >= self.width {
+                        continue;
+                    }
+                    for (co, ci) in (0..o).flat_map(|a| (0..c).map(move |b| (a, b))) {
+                        let g = grad[((n * oh + oy) * ow + ox) * o + co];
+                        let v = input[((n * self.height + y) * self.width + x) * c + ci];
+                        weight_grad[((co * k + ky) * k + kx) * c + ci] += g * v;
+                    }
+                }
+            }
+        }
+        weight_grad
+    }
+}
+
+/// burn-cubecl's im2col weight gradient builds its columns in one kernel (vendor/README.md):
+/// a tuner on a GPU takes it for the nets' 3x3 convolutions, where lavapipe's runs the
+/// direct one, so it is called here directly, on the input laid out as the convolution
+/// hands it over (channels last through strides). Its gradient must be the host's, for a
+/// padded strided 3x3 over a plane that is not square and for a dilated one, in fewer
+/// kernels than taps (the unpatched one launched two a tap and a fill: 19).
+#[test]
+fn the_im2col_weight_gradient_is_the_hosts_in_fewer_kernels_than_taps() {
+    use burn::backend::DispatchDevice;
+    use burn::backend::ops::FloatTensorOps;
+    use burn::backend::wgpu::CubeBackend;
+    use burn::tensor::ops::ConvOptions;
+    use burn::tensor::{Shape, TensorData};
+    use burn_cubecl::cubecl::future::block_on;
+
+    let _turn = device_turn();
+    let gpu = gpu();
+    let DispatchDevice::Cube(device) = gpu.as_dispatch().clone() else {
+        panic!("the wgpu device is a CubeCL one");
+    };
+    let base = WeightGradCase {
+        batch: 2,
+        height: 12,
+        width: 9,
+        channels: 3,
+        out_channels: 4,
+        stride: 2,
+        padding: 1,
+        dilation: 1,
+    };
+    let dilated = WeightGradCase {
+        stride: 1,
+        padding: 2,
+        dilation: 2,
+        ..base
+    };
+    for case in [base, dilated] {
+        let (n, c, o, k) = (
+            case.batch,
+            case.channels,
+            case.out_channels,
+            WeightGradCase::KERNEL,
+        );
+        let (oh, ow) = (case.out_side(case.height), case.out_side(case.width));
+        let wave = |len: usize, phase: f32| -> Vec<f32> {
+            (0..len).map(|i| (i as f32 * 0.37 + phase).sin()).collect()
+        };
+        let input = wave(n * case.height * case.width * c, 0.0);
+        let grad = wave(n * oh * ow * o, 1.0);
+        // Channels first in memory, read channels last through strides.
+        let nchw: Vec<f32> = (0..n * c * case.height * case.width)
+            .map(|i| {
+                let (x, rest) = (i % case.width, i / case.width);
+                let (y, rest) = (rest % case.height, rest / case.height);
+                let (ci, b) = (rest % c, rest / c);
+                input[((b * case.height + y) * case.width + x) * c + ci]
+            })
+            .collect();
+        let nchw = TensorData::new(nchw, [n, c, case.height, case.width]);
+        let input_t =
+            CubeBackend::float_permute(CubeBackend::float_from_data(nchw, &device), &[0, 2, 3, 1]);
+        let grad_t =
+            CubeBackend::float_from_data(TensorData::new(grad.clone(), [n, oh, ow, o]), &device);
+        let options = ConvOptions::new([case.stride; 2], [case.padding; 2], [case.dilation; 2], 1);
+        let (weight_grad, launches) = qnet::kernels::count(&gpu, || {
+            burn_cubecl::kernel::conv::wgrad_im2col::<2>(
+                input_t,
+                grad_t,
+                Shape::new([o, k, k, c]),
+                options,
+            )
+            .expect("a dense 3x3 is one the im2col candidate takes")
+        });
+        let got = block_on(CubeBackend::float_into_data(weight_grad))
+            .unwrap()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let d = Difference::between(&got, &case.on_host(&input, &grad));
+        let launches = launches.expect("a wgpu device counts its launches");
+        println!(
+            "im2col weight gradient, stride {} dilation {}: {d:?}, kernels {:?}",
+            case.stride,
+            case.dilation,
+            launches.by_name()
+        );
+        assert!(d.max_rel <= 1e-5, "{d:?}");
+        assert!(
+            launches.total() < (k * k) as u64,
+            "{} kernels: {:?}",
+            launches.total(),
+            launches.by_name()
+        );
+    }
+}
+
 #[test]
 fn a_checkpoint_saved_on_one_backend_loads_on_the_other() {
     let _turn = device_turn();

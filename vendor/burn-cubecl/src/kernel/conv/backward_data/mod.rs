@@ -1,0 +1,11 @@
+pub mod fallback;
+pub mod implicit_gemm;
+
+#[cfg(feature = "autotune")]
+mod stride_phases;
+
+#[cfg(feature = "autotune")]
+pub mod tune;
+
+#[cfg(feature = "autotune")]
+pub(crate) use tune::*;
