@@ -31,7 +31,8 @@ test-gpu:
 
 # Every GPU figure in one go on a GPU host, within about 8 minutes, into gpu-figures.json
 # (`pushgrasp bench gpu`). PUSHGRASP_BIN names a wgpu build made beforehand (a GPU host's
-# minutes are too few to build one); without it, one is built here.
+# minutes are too few to build one); without it, one is built here. The tune cache it fills
+# holds what the GPU's tuner took for every shape: `tools/tune_picks.py list target/tune`.
 gpu-bench:
 	@bin="$(PUSHGRASP_BIN)"; \
 	if [ -z "$$bin" ]; then $(CARGO) build --release --features wgpu && bin=target/release/pushgrasp; fi; \
