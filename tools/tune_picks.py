@@ -60,7 +60,7 @@ def picked(value):
 
 
 def kernel_size(key):
-    conv = key["key"].get("Conv") if isinstance(key["key"], dict) else None
+    conv = key["key"].get("Conv")
     return conv["kernel_size"] if conv else None
 
 
