@@ -87,6 +87,8 @@ pub struct Trainer {
     config: LearningConfig,
     trained: TrainedNet,
     updates: u64,
+    /// Whether the nets train on the CPU backend (whose steps run on rayon's pool).
+    on_cpu: bool,
 }
 
 impl Trainer {
@@ -113,6 +115,7 @@ impl Trainer {
             config: config.clone(),
             trained,
             updates: 0,
+            on_cpu: device.clone().without_autodiff() == Device::flex(),
         };
         trainer.set_trained(trained);
         trainer
@@ -181,10 +184,17 @@ impl Trainer {
 
     /// One update on a batch of samples of the trained net's primitive.
     pub fn train_step(&mut self, samples: &[Sample]) -> Result<StepReport, LearnerError> {
-        // On rayon's pool: the step's parallel operations then start from a worker instead
-        // of each being handed over from this thread and waited for (a futex wake and sleep
-        // per operation, a sixth of a one-grasp step on two cores).
-        rayon::scope(|_| self.update(samples))
+        // On the CPU, on rayon's pool: the step's parallel operations then start from a
+        // worker instead of each being handed over from this thread and waited for (a futex
+        // wake and sleep per operation, a sixth of a one-grasp step on two cores). On a GPU,
+        // on this thread: burn's fusion queues a thread's operations on a stream of its own,
+        // and a worker's stream holds the backward pass and the optimiser, unrun, until a
+        // later read needs them, out of reach of this thread's device syncs.
+        if self.on_cpu {
+            rayon::scope(|_| self.update(samples))
+        } else {
+            self.update(samples)
+        }
     }
 
     fn update(&mut self, samples: &[Sample]) -> Result<StepReport, LearnerError> {
