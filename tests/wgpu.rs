@@ -491,6 +491,108 @@ fn the_im2col_weight_gradient_is_the_hosts_in_fewer_kernels_than_taps() {
     }
 }
 
+/// The batch norm's statistics and its gradients (qnet::batch_norm) on the GPU are a
+/// kernel each, a cube a channel, and must give the CPU's loops' values: for an input laid
+/// out contiguously and for one laid out channels last, as a convolution hands it over, with
+/// fewer values a channel than a cube's threads and with several times as many, and with
+/// more channels than a cube takes side by side.
+#[test]
+fn the_batch_norms_statistics_and_gradients_are_the_cpus_in_a_kernel_each() {
+    use burn::backend::Dispatch;
+    use burn::tensor::TensorData;
+    use qnet::batch_norm::NormBackend;
+
+    let _turn = device_turn();
+    let gpu = gpu();
+    let epsilon = 1e-5;
+    for ([n, c, h, w], channels_last) in [
+        ([3, 5, 7, 6], false),
+        ([2, 4, 30, 25], true),
+        ([2, 3, 5, 70], true),
+        ([2, 40, 3, 5], true),
+    ] {
+        let wave = |len: usize, rate: f32, scale: f32| -> Vec<f32> {
+            (0..len)
+                .map(|i| (i as f32 * rate).sin() * scale + 0.3)
+                .collect()
+        };
+        let len = n * c * h * w;
+        let (x, gamma) = (wave(len, 0.37, 2.0), wave(c, 0.9, 1.0));
+        let (output, grad) = (wave(len, 0.23, 1.0), wave(len, 0.11, 1.0));
+        // (statistics, gradients) and each call's kernels on `device`.
+        let run = |device: &Device| {
+            let tensor = |values: &[f32], shape: Vec<usize>| {
+                Tensor::<4>::from_data(TensorData::new(values.to_vec(), shape), device)
+                    .into_dispatch()
+            };
+            let channel = |values: &[f32]| {
+                Tensor::<1>::from_data(TensorData::new(values.to_vec(), [c]), device)
+                    .into_dispatch()
+            };
+            // `x`'s values in [n, c, h, w] order, or stored [n, h, w, c] and read through
+            // strides.
+            let nhwc: Vec<f32> = (0..len)
+                .map(|i| {
+                    let (k, rest) = (i % c, i / c);
+                    let (xx, rest) = (rest % w, rest / w);
+                    let (y, b) = (rest % h, rest / h);
+                    x[((b * c + k) * h + y) * w + xx]
+                })
+                .collect();
+            let x_t = || match channels_last {
+                true => Tensor::<4>::from_dispatch(tensor(&nhwc, vec![n, h, w, c]))
+                    .permute([0, 3, 1, 2])
+                    .into_dispatch(),
+                false => tensor(&x, vec![n, c, h, w]),
+            };
+            let ((mean, variance), statistics_kernels) =
+                qnet::kernels::count(device, || Dispatch::norm_statistics(x_t()));
+            let ((x_grad, gamma_grad, beta_grad), grads_kernels) =
+                qnet::kernels::count(device, || {
+                    Dispatch::norm_relu_train_grads(
+                        x_t(),
+                        channel(&gamma),
+                        mean.clone(),
+                        variance.clone(),
+                        epsilon,
+                        tensor(&output, vec![n, c, h, w]),
+                        tensor(&grad, vec![n, c, h, w]),
+                    )
+                });
+            let values = |t| {
+                Tensor::<1>::from_dispatch(t)
+                    .flatten::<1>(0, 0)
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .unwrap()
+            };
+            (
+                [mean, variance].map(values),
+                [x_grad, gamma_grad, beta_grad].map(values),
+                [statistics_kernels, grads_kernels],
+            )
+        };
+        let (statistics, grads, kernels) = run(&gpu);
+        let (want_statistics, want_grads, _) = run(&Device::flex());
+        for (what, got, want) in [
+            ("mean", &statistics[0], &want_statistics[0]),
+            ("variance", &statistics[1], &want_statistics[1]),
+            ("the input's gradient", &grads[0], &want_grads[0]),
+            ("gamma's gradient", &grads[1], &want_grads[1]),
+            ("beta's gradient", &grads[2], &want_grads[2]),
+        ] {
+            let d = Difference::between(got, want);
+            println!("batch norm {:?}, {what}, wgpu vs cpu: {d:?}", [n, c, h, w]);
+            assert!(d.max_rel <= 1e-5, "{what}: {d:?}");
+        }
+        for (call, launches) in ["statistics", "gradients"].iter().zip(kernels) {
+            let launches = launches.expect("a wgpu device counts its launches");
+            println!("batch norm {call}: {:?}", launches.by_name());
+            assert_eq!(launches.total(), 1, "{call}: {:?}", launches.by_name());
+        }
+    }
+}
+
 #[test]
 fn a_checkpoint_saved_on_one_backend_loads_on_the_other() {
     let _turn = device_turn();

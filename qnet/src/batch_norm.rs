@@ -3,14 +3,16 @@
 //! move every channel to the front (a transposed copy of the activation) for each of their
 //! statistics, and the ReLU then made and read another copy each way. On the CPU backend
 //! the statistics, the normalisation with its ReLU and the three gradients are plain loops
-//! over each channel's planes; elsewhere (wgpu) burn's own operations, composed so that each
-//! statistic is one sum over every dimension but the channels' (no transposed copy) and the
-//! rest element-wise, which burn's fusion joins into few kernels. Every batch norm of the
-//! nets is followed by a ReLU. The module keeps burn's [`BatchNorm`] (its parameters,
-//! running statistics and their update), so checkpoints and the inference path do not
-//! change.
+//! over each channel's planes; on a GPU (wgpu) the statistics and the gradients are a
+//! kernel each (threads summing each channel in shared memory), and the normalisation with
+//! its ReLU burn's element-wise operations, which burn's fusion joins with what is around
+//! them. Every batch norm of the nets is followed by a ReLU. The module keeps burn's
+//! [`BatchNorm`] (its parameters, running statistics and their update), so checkpoints and
+//! the inference path do not change.
 
 mod composed;
+#[cfg(feature = "wgpu")]
+mod cube;
 mod flex;
 
 use burn::backend::autodiff::NodeId;
@@ -28,15 +30,20 @@ use burn::tensor::activation::relu;
 /// the batch's mean and biased variance per channel (`[c]` each), which
 /// [`NormBackend::norm_statistics`] computes once per pass. (Each a tensor of its own: a
 /// view into one stacked buffer cost a device a copy and a slice per use.)
-#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"))]
+#[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"), Fusion: cfg(feature = "wgpu"))]
 pub trait NormBackend: Backend {
     /// The batch mean and biased variance of each channel, `[c]` each; no gradient.
+    #[fusion(meta = |x| {
+        let channels = burn::backend::fusion::custom::TensorSpec::new([x.shape[1]].into(), x.dtype);
+        (channels.clone(), channels)
+    })]
     fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
         composed::statistics::<Self>(x)
     }
 
     /// `relu((x - mean) / sqrt(variance + epsilon) * gamma + beta)` with the batch's
     /// statistics. Its backward differentiates through the statistics as functions of `x`.
+    #[fusion(default)]
     fn norm_relu_train(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
@@ -50,6 +57,9 @@ pub trait NormBackend: Backend {
 
     /// The gradients of [`NormBackend::norm_relu_train`], whose `output` it was: input,
     /// gamma and beta. (Each a tensor of its own, as the statistics.)
+    #[fusion(meta = |x, gamma, _mean, _variance, _epsilon, _output, _grad| {
+        (x.clone(), gamma.clone(), gamma.clone())
+    })]
     fn norm_relu_train_grads(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,
@@ -62,9 +72,6 @@ pub trait NormBackend: Backend {
         composed::grads::<Self>(x, gamma, mean, variance, epsilon, output, grad)
     }
 }
-
-#[cfg(feature = "wgpu")]
-impl NormBackend for burn::backend::Cube {}
 
 impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B, C> {
     fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {

@@ -1,7 +1,10 @@
-//! The operation composed from burn's own, for every backend: each per-channel sum one
-//! reduction over the other dimensions, which a GPU backend runs over the activation as it
-//! lies (burn's generic `batch_norm_train` and its backward first copy it with the channels
-//! moved to the front, for each of four sums), and the rest element-wise.
+//! The operation composed from burn's own: each per-channel sum one reduction over the other
+//! dimensions, which a GPU backend runs over the activation as it lies (burn's generic
+//! `batch_norm_train` and its backward first copy it with the channels moved to the front,
+//! for each of four sums), and the rest element-wise. On a GPU the normalisation is this
+//! one (element-wise, burn's fusion joins it with its neighbours), the statistics and the
+//! gradients where the kernels of `cube` do not take the input (not f32, or its planes not
+//! each one run of values); on the CPU it is the reference the loops are tested against.
 
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Scalar, TensorMetadata};

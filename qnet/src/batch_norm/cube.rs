@@ -1,0 +1,363 @@
+//! The statistics and the gradients on a GPU (CubeCL), each one kernel: a cube's threads
+//! run over the values of a channel (or of a few channels side by side), sum them in shared
+//! memory, and go over them again with the sums (the variance about the mean; the input's
+//! gradient). Composed from burn's operations, the statistics took two reductions and an
+//! element-wise kernel between them, and the gradients an element-wise kernel, two
+//! reductions and another element-wise one (results/gpu.md, "The batch norm in two
+//! kernels"). The normalisation itself stays composed: element-wise, it fuses with what is
+//! around it.
+//!
+//! Neighbouring threads read neighbouring values: along a plane where the channels are
+//! planes (`[n, c, h, w]` in memory), across the channels where they lie last (as a
+//! convolution hands its output over, `[n, h, w, c]` read through strides). The input's
+//! gradient is laid out as the input.
+
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::wgpu::{CubeBackend, CubeTensor};
+use burn::cubecl;
+use burn::tensor::{DType, Shape};
+use cubecl::prelude::*;
+use cubecl::{CubeCount, CubeDim};
+
+use super::{NormBackend, composed};
+
+/// Threads a cube, a power of two.
+const THREADS: usize = 256;
+
+/// Which channel a thread sums and where its values start and lie in the planes: a cube a
+/// channel, every thread along the plane; or, `channels_last`, a channel a column of
+/// threads (`CUBE_DIM_X` channels a cube), its rows along the plane.
+#[cube]
+fn thread_place(#[comptime] channels_last: bool) -> (usize, usize, usize) {
+    if channels_last {
+        (
+            (CUBE_POS_X * CUBE_DIM_X + UNIT_POS_X) as usize,
+            UNIT_POS_Y as usize,
+            CUBE_DIM_Y as usize,
+        )
+    } else {
+        (CUBE_POS_X as usize, UNIT_POS as usize, CUBE_DIM as usize)
+    }
+}
+
+/// The sum of `value` over the threads of the cube that sum the same channel, in each of
+/// them. `partial` holds a value a thread; it is free again when this returns.
+#[cube]
+fn channel_sum(value: f32, partial: &mut Shared<[f32]>, #[comptime] channels_last: bool) -> f32 {
+    let unit = UNIT_POS as usize;
+    // A channel's threads are a column of the cube (`CUBE_DIM_X` apart), or all of it.
+    let mut lanes = 1usize;
+    if channels_last {
+        lanes = CUBE_DIM_X as usize;
+    }
+    partial[unit] = value;
+    sync_cube();
+    let mut half = CUBE_DIM as usize / 2;
+    while half >= lanes {
+        if unit < half {
+            let other = partial[unit + half];
+            partial[unit] += other;
+        }
+        sync_cube();
+        half /= 2;
+    }
+    let sum = partial[unit % lanes];
+    sync_cube();
+    sum
+}
+
+/// Where the plane of channel `channel` of item `item` starts in `t` (`[n, c, h, w]`).
+#[cube]
+fn plane_start(t: &Tensor<f32>, item: usize, channel: usize) -> usize {
+    item * t.stride(0) + channel * t.stride(1)
+}
+
+/// The sum of `v - centre`, or of its square, over a thread's share of the values `v` of
+/// channel `channel` of `x`: every `step`-th value of each plane from its `first`. A thread
+/// past the last channel sums nothing (but takes its part in the cube's sums).
+#[cube]
+fn share_sum(
+    x: &Tensor<f32>,
+    channel: usize,
+    first: usize,
+    step: usize,
+    centre: f32,
+    #[comptime] squared: bool,
+) -> f32 {
+    let (plane, along) = (x.shape(2) * x.shape(3), x.stride(3));
+    let mut sum = 0.0f32;
+    if channel < x.shape(1) {
+        for item in 0..x.shape(0) {
+            let start = plane_start(x, item, channel);
+            let mut at = first;
+            while at < plane {
+                let d = x[start + at * along] - centre;
+                if squared {
+                    sum += d * d;
+                } else {
+                    sum += d;
+                }
+                at += step;
+            }
+        }
+    }
+    sum
+}
+
+/// The output's gradient through the ReLU, `dy`, and the normalised input, `x_hat`, at the
+/// given places of `output`, `grad` and `x`.
+#[cube]
+#[allow(clippy::too_many_arguments)]
+fn dy_and_x_hat(
+    x: &Tensor<f32>,
+    output: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    at_x: usize,
+    at_output: usize,
+    at_grad: usize,
+    centre: f32,
+    inv_std: f32,
+) -> (f32, f32) {
+    let relu = output[at_output] > 0.0;
+    (
+        select(relu, grad[at_grad], 0.0f32),
+        (x[at_x] - centre) * inv_std,
+    )
+}
+
+/// The mean and biased variance of each channel of `x` (`[n, c, h, w]`, its planes
+/// `x.stride(3)` a value), in two passes over its values.
+#[cube(launch)]
+fn norm_statistics_kernel(
+    x: &Tensor<f32>,
+    mean: &mut Tensor<f32>,
+    variance: &mut Tensor<f32>,
+    #[comptime] channels_last: bool,
+    #[comptime] threads: usize,
+) {
+    let (channel, first, step) = thread_place(channels_last);
+    let mut partial = Shared::new_slice(threads);
+    let share = 1.0 / f32::cast_from(x.shape(0) * x.shape(2) * x.shape(3));
+    let sum = share_sum(x, channel, first, step, 0.0, false);
+    let centre = channel_sum(sum, &mut partial, channels_last) * share;
+    let squares = share_sum(x, channel, first, step, centre, true);
+    let spread = channel_sum(squares, &mut partial, channels_last) * share;
+    if channel < x.shape(1) && first == 0 {
+        mean[channel] = centre;
+        variance[channel] = spread;
+    }
+}
+
+/// The gradients of each channel: beta's `sum(dy)`, gamma's `sum(dy x_hat)` (one pass),
+/// then the input's `gamma / std / m (m dy - sum(dy) - x_hat sum(dy x_hat))` (a second),
+/// with `dy` the output's gradient through the ReLU, `x_hat` the normalised input and `m`
+/// the values a channel. Every `[n, c, h, w]` tensor's planes are `stride(3)` a value.
+#[cube(launch)]
+#[allow(clippy::too_many_arguments)]
+fn norm_grads_kernel(
+    x: &Tensor<f32>,
+    gamma: &Tensor<f32>,
+    mean: &Tensor<f32>,
+    variance: &Tensor<f32>,
+    output: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    x_grad: &mut Tensor<f32>,
+    gamma_grad: &mut Tensor<f32>,
+    beta_grad: &mut Tensor<f32>,
+    epsilon: f32,
+    #[comptime] channels_last: bool,
+    #[comptime] threads: usize,
+) {
+    let (channel, first, step) = thread_place(channels_last);
+    let (items, plane) = (x.shape(0), x.shape(2) * x.shape(3));
+    let live = channel < x.shape(1);
+    let mut partial = Shared::new_slice(threads);
+    let mut centre = 0.0f32;
+    let mut inv_std = 0.0f32;
+    let mut scale = 0.0f32;
+    if live {
+        centre = mean[channel * mean.stride(0)];
+        inv_std = 1.0 / f32::sqrt(variance[channel * variance.stride(0)] + epsilon);
+        scale = gamma[channel * gamma.stride(0)];
+    }
+    let along = (
+        x.stride(3),
+        output.stride(3),
+        grad.stride(3),
+        x_grad.stride(3),
+    );
+
+    let mut sum_dy = 0.0f32;
+    let mut sum_dy_x_hat = 0.0f32;
+    for item in 0..items {
+        let at_x = plane_start(x, item, channel);
+        let at_output = plane_start(output, item, channel);
+        let at_grad = plane_start(grad, item, channel);
+        let mut at = first;
+        while live && at < plane {
+            let (dy, x_hat) = dy_and_x_hat(
+                x,
+                output,
+                grad,
+                at_x + at * along.0,
+                at_output + at * along.1,
+                at_grad + at * along.2,
+                centre,
+                inv_std,
+            );
+            sum_dy += dy;
+            sum_dy_x_hat += dy * x_hat;
+            at += step;
+        }
+    }
+    let sum_dy = channel_sum(sum_dy, &mut partial, channels_last);
+    let sum_dy_x_hat = channel_sum(sum_dy_x_hat, &mut partial, channels_last);
+    if live && first == 0 {
+        gamma_grad[channel] = sum_dy_x_hat;
+        beta_grad[channel] = sum_dy;
+    }
+
+    let m = f32::cast_from(items * plane);
+    let factor = scale * inv_std / m;
+    for item in 0..items {
+        let at_x = plane_start(x, item, channel);
+        let at_output = plane_start(output, item, channel);
+        let at_grad = plane_start(grad, item, channel);
+        // Written, so its strides are read here (a helper takes tensors it only reads).
+        let at_x_grad = item * x_grad.stride(0) + channel * x_grad.stride(1);
+        let mut at = first;
+        while live && at < plane {
+            let (dy, x_hat) = dy_and_x_hat(
+                x,
+                output,
+                grad,
+                at_x + at * along.0,
+                at_output + at * along.1,
+                at_grad + at * along.2,
+                centre,
+                inv_std,
+            );
+            x_grad[at_x_grad + at * along.3] = factor * (dy * m - sum_dy - x_hat * sum_dy_x_hat);
+            at += step;
+        }
+    }
+}
+
+/// A contiguous f32 tensor of `shape` on `like`'s device, its values not yet written.
+fn empty(like: &CubeTensor, shape: Shape) -> CubeTensor {
+    let handle = like.client.empty(shape.num_elements() * DType::F32.size());
+    let (client, device) = (like.client.clone(), like.device.clone());
+    CubeTensor::new_contiguous(client, device, shape, handle, DType::F32)
+}
+
+/// An f32 tensor of `like`'s shape, its values not yet written, laid out in memory as
+/// `like` is when that is dense (a convolution's output has its channels last, and a
+/// gradient laid out otherwise would be copied back before the convolution's backward pass),
+/// else contiguous.
+fn empty_like(like: &CubeTensor) -> CubeTensor {
+    let (shape, strides) = (like.meta.shape(), like.meta.strides());
+    let rank = shape.num_dims();
+    // The dimensions from the outermost in memory.
+    let mut order: Vec<usize> = (0..rank).collect();
+    if like.is_contiguous_buffer() && like.is_nonoverlapping() {
+        order.sort_by_key(|&d| std::cmp::Reverse(strides[d]));
+    }
+    let stored = empty(like, order.iter().map(|&d| shape[d]).collect());
+    let mut axes = vec![0; rank];
+    for (at, &d) in order.iter().enumerate() {
+        axes[d] = at;
+    }
+    CubeBackend::float_permute(stored, &axes)
+}
+
+/// Whether `t` (`[n, c, h, w]`) holds each plane as one run of values, `stride(3)` apart
+/// (its rows follow one another), as the kernels read it.
+fn planes_in_runs(t: &CubeTensor) -> bool {
+    let (shape, strides) = (t.meta.shape(), t.meta.strides());
+    shape.num_dims() == 4 && (shape[2] == 1 || strides[2] == shape[3] * strides[3])
+}
+
+/// The kernels' cubes and whether they go across the channels: where `x`'s channels lie
+/// last, `CUBE_DIM_X` channels a cube (at most 32, the power of two that covers them) by
+/// as many rows as make [`THREADS`]; else a cube a channel.
+fn launch_shape(x: &CubeTensor) -> (CubeCount, CubeDim, bool) {
+    let (shape, strides) = (x.meta.shape(), x.meta.strides());
+    let channels = shape[1];
+    if strides[1] < strides[3] {
+        let across = channels.next_power_of_two().min(32);
+        let cubes = channels.div_ceil(across);
+        let cube_dim = CubeDim::new_2d(across as u32, (THREADS / across) as u32);
+        (CubeCount::Static(cubes as u32, 1, 1), cube_dim, true)
+    } else {
+        let cube_dim = CubeDim::new_1d(THREADS as u32);
+        (CubeCount::Static(channels as u32, 1, 1), cube_dim, false)
+    }
+}
+
+impl NormBackend for CubeBackend {
+    fn norm_statistics(x: CubeTensor) -> (CubeTensor, CubeTensor) {
+        if x.dtype != DType::F32 || !planes_in_runs(&x) {
+            return composed::statistics::<Self>(x);
+        }
+        let (cubes, cube_dim, channels_last) = launch_shape(&x);
+        let channels = Shape::from([x.meta.shape()[1]]);
+        let [mean, variance] = [empty(&x, channels.clone()), empty(&x, channels)];
+        let client = x.client.clone();
+        norm_statistics_kernel::launch(
+            &client,
+            cubes,
+            cube_dim,
+            x.into_tensor_arg(),
+            mean.clone().into_tensor_arg(),
+            variance.clone().into_tensor_arg(),
+            channels_last,
+            THREADS,
+        );
+        (mean, variance)
+    }
+
+    fn norm_relu_train_grads(
+        x: CubeTensor,
+        gamma: CubeTensor,
+        mean: CubeTensor,
+        variance: CubeTensor,
+        epsilon: f64,
+        output: CubeTensor,
+        grad: CubeTensor,
+    ) -> (CubeTensor, CubeTensor, CubeTensor) {
+        let x_grad = empty_like(&x);
+        if ![&x, &output, &grad, &x_grad]
+            .iter()
+            .all(|t| planes_in_runs(t))
+            || [&x, &gamma, &mean, &variance, &output, &grad]
+                .iter()
+                .any(|t| t.dtype != DType::F32)
+        {
+            return composed::grads::<Self>(x, gamma, mean, variance, epsilon, output, grad);
+        }
+        let (cubes, cube_dim, channels_last) = launch_shape(&x);
+        let [gamma_grad, beta_grad] = [
+            empty(&x, gamma.meta.shape().clone()),
+            empty(&x, gamma.meta.shape().clone()),
+        ];
+        let client = x.client.clone();
+        norm_grads_kernel::launch(
+            &client,
+            cubes,
+            cube_dim,
+            x.into_tensor_arg(),
+            gamma.into_tensor_arg(),
+            mean.into_tensor_arg(),
+            variance.into_tensor_arg(),
+            output.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            x_grad.clone().into_tensor_arg(),
+            gamma_grad.clone().into_tensor_arg(),
+            beta_grad.clone().into_tensor_arg(),
+            epsilon as f32,
+            channels_last,
+            THREADS,
+        );
+        (x_grad, gamma_grad, beta_grad)
+    }
+}
