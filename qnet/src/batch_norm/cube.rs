@@ -24,9 +24,10 @@ use super::{NormBackend, composed};
 /// Threads a cube, a power of two.
 const THREADS: usize = 256;
 
-/// Which channel a thread sums and where its values start and lie in the planes: a cube a
-/// channel, every thread along the plane; or, `channels_last`, a channel a column of
-/// threads (`CUBE_DIM_X` channels a cube), its rows along the plane.
+/// `(channel, first, step)`: the channel a thread sums, and which of each of its planes'
+/// values it takes, every `step`-th from the `first`. A cube a channel, every thread along
+/// the planes; or, `channels_last`, a channel a column of threads (`CUBE_DIM_X` channels a
+/// cube), its rows along the planes.
 #[cube]
 fn thread_place(#[comptime] channels_last: bool) -> (usize, usize, usize) {
     if channels_last {
