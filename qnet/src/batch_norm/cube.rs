@@ -15,7 +15,7 @@
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
 use burn::cubecl;
-use burn::tensor::{DType, Shape};
+use burn::tensor::{DType, FloatDType, Shape};
 use cubecl::prelude::*;
 use cubecl::{CubeCount, CubeDim};
 
@@ -246,9 +246,7 @@ fn norm_grads_kernel(
 
 /// A contiguous f32 tensor of `shape` on `like`'s device, its values not yet written.
 fn empty(like: &CubeTensor, shape: Shape) -> CubeTensor {
-    let handle = like.client.empty(shape.num_elements() * DType::F32.size());
-    let (client, device) = (like.client.clone(), like.device.clone());
-    CubeTensor::new_contiguous(client, device, shape, handle, DType::F32)
+    CubeBackend::float_empty(shape, &like.device, FloatDType::F32)
 }
 
 /// An f32 tensor of `like`'s shape, its values not yet written, laid out in memory as
@@ -326,10 +324,9 @@ impl NormBackend for CubeBackend {
         output: CubeTensor,
         grad: CubeTensor,
     ) -> (CubeTensor, CubeTensor, CubeTensor) {
-        let x_grad = empty_like(&x);
-        if ![&x, &output, &grad, &x_grad]
-            .iter()
-            .all(|t| planes_in_runs(t))
+        // (The input's gradient, laid out as `x` or contiguously, has its planes in runs
+        // whenever `x` has.)
+        if ![&x, &output, &grad].iter().all(|t| planes_in_runs(t))
             || [&x, &gamma, &mean, &variance, &output, &grad]
                 .iter()
                 .any(|t| t.dtype != DType::F32)
@@ -337,6 +334,7 @@ impl NormBackend for CubeBackend {
             return composed::grads::<Self>(x, gamma, mean, variance, epsilon, output, grad);
         }
         let (cubes, cube_dim, channels_last) = launch_shape(&x);
+        let x_grad = empty_like(&x);
         let [gamma_grad, beta_grad] = [
             empty(&x, gamma.meta.shape().clone()),
             empty(&x, gamma.meta.shape().clone()),
