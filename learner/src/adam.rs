@@ -131,6 +131,8 @@ mod kernel {
     use cubecl::prelude::*;
     use cubecl::{CubeDim, calculate_cube_count_elemwise};
 
+    use qnet::cube_outputs::empty_like;
+
     use super::{AdamBackend, StepFactors, composed};
 
     #[cube(launch)]
@@ -152,27 +154,23 @@ mod kernel {
         epsilon: f32,
         lr: f32,
     ) {
-        // Element i of the (contiguous) outputs in each input, laid out as it is.
-        let mut rest = ABSOLUTE_POS;
+        // Element i of the outputs' memory (laid out alike, densely) in each input, laid out
+        // as it is: neighbouring threads write neighbouring values.
+        let i = ABSOLUTE_POS;
+        if i >= param_out.len() {
+            terminate!();
+        }
         let mut at_p = 0usize;
         let mut at_g = 0usize;
         let mut at_m = 0usize;
         let mut at_v = 0usize;
-        let rank = param.rank();
-        for r in 0..rank {
-            let d = rank - 1 - r;
-            let k = rest % param.shape(d);
-            rest /= param.shape(d);
+        for d in 0..param.rank() {
+            let k = (i / param_out.stride(d)) % param_out.shape(d);
             at_p += k * param.stride(d);
             at_g += k * grad.stride(d);
             at_m += k * moment_1.stride(d);
             at_v += k * moment_2.stride(d);
         }
-        // Past the last element (the last cube's spare threads).
-        if rest != 0 {
-            terminate!();
-        }
-        let i = ABSOLUTE_POS;
         let p = param[at_p];
         let g = p * weight_decay + grad[at_g];
         let m = moment_1[at_m] * beta_1 + g * one_minus_beta_1;
@@ -194,14 +192,10 @@ mod kernel {
             if param.dtype != DType::F32 {
                 return composed::step::<Self>(param, grad, moment_1, moment_2, f);
             }
-            let shape = param.meta.shape().clone();
-            let n = shape.num_elements();
-            let output = || {
-                let handle = param.client.empty(n * param.dtype.size());
-                let (client, device) = (param.client.clone(), param.device.clone());
-                CubeTensor::new_contiguous(client, device, shape.clone(), handle, param.dtype)
-            };
-            let [param_out, moment_1_out, moment_2_out] = [output(), output(), output()];
+            // Laid out as the parameter lies: a convolution's weight held channels-last
+            // (`Trainer`) stays so, as the GPU convolves it.
+            let [param_out, moment_1_out, moment_2_out] = [(); 3].map(|_| empty_like(&param));
+            let n = param_out.meta.shape().num_elements();
             let client = param.client.clone();
             let cube_dim = CubeDim::new(&client, n);
             let cube_count = calculate_cube_count_elemwise(&client, n, cube_dim);

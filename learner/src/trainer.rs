@@ -103,11 +103,12 @@ impl Trainer {
         device: &Device,
     ) -> Self {
         let optimiser = ModuleOptimizer::from(Adam::of(config));
+        let on_cpu = device.clone().without_autodiff() == Device::flex();
         let nets = nets.to_device(&device.clone().autodiff()).train();
         let average = (config.polyak_rate < 1.0).then(|| nets.valid());
         let target = (config.target_update_every > 0).then(|| nets.valid());
         let mut trainer = Self {
-            nets,
+            nets: nets.clone(),
             average,
             target,
             optimiser,
@@ -115,10 +116,25 @@ impl Trainer {
             config: config.clone(),
             trained,
             updates: 0,
-            on_cpu: device.clone().without_autodiff() == Device::flex(),
+            on_cpu,
         };
-        trainer.set_trained(trained);
+        trainer.hold(nets);
         trainer
+    }
+
+    /// Trains `nets` (on the trainer's autodiff device) from now on, `self.trained` of them.
+    /// On a GPU their convolution weights are first laid out channels-last, as the GPU
+    /// convolves them; Adam keeps each parameter laid out as it lies, so no weight is copied
+    /// before a convolution or its input's gradient (results/gpu.md, "Weights held
+    /// channels-last"); a rotation-equivariant net's full kernels are gathered from them
+    /// channels-last too (`qnet::equivariant::expand`).
+    fn hold(&mut self, nets: QNets) {
+        self.nets = if self.on_cpu {
+            nets
+        } else {
+            nets.with_weights_channels_last()
+        };
+        self.set_trained(self.trained);
     }
 
     /// Trains `which` from now on, freezing the other net whole.
@@ -378,8 +394,8 @@ impl Trainer {
     /// Starts from other weights (an earlier stage's nets), and restarts any average and
     /// the target nets from them.
     pub fn load_weights(&mut self, bytes: &[u8]) -> Result<(), LearnerError> {
-        self.nets = self.nets.clone().load_bytes(bytes)?;
-        self.set_trained(self.trained);
+        let loaded = self.nets.clone().load_bytes(bytes)?;
+        self.hold(loaded);
         if self.average.is_some() {
             self.average = Some(self.nets.valid());
         }

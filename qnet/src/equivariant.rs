@@ -17,6 +17,8 @@ use burn::prelude::*;
 use burn::tensor::kind::Basic;
 use sim::ROTATIONS;
 
+use crate::weight_layout::{FROM_CHANNELS_LAST, TO_CHANNELS_LAST};
+
 /// The rotations by 90 degrees.
 pub const QUARTER_TURNS: usize = 4;
 
@@ -43,25 +45,52 @@ pub fn quarter_turns<const D: usize, K: Basic>(x: Tensor<D, K>, turns: usize) ->
 /// training step's every convolution lays its weights out anew, and the quarter turns and
 /// shifts one by one were about twenty kernels a convolution on a GPU, their gradients as
 /// many again (an equivariant stage step on lavapipe: 1,070 kernels so, 627 gathered).
+///
+/// On a GPU the gather is channels-last, `[k, k, channels_in]` a kernel in memory: base
+/// kernels held so (a trainer's, `QNets::with_weights_channels_last`) are read as they lie,
+/// and the full kernels come out laid out as the convolution reads them. Laid out as burn
+/// lays them out, the base would be copied before the gather, or the full kernels before
+/// the convolution and its input's gradient.
 pub fn expand(base: Tensor<4>, groups: [usize; 2]) -> Tensor<4> {
     if groups[1] == 1 {
         return base;
     }
     let [fields_out, channels_in, k, _] = base.dims();
-    let index = expansion_index([channels_in, k], groups, &base.device());
-    base.reshape([fields_out, channels_in * k * k])
-        .select(1, index)
-        .reshape([fields_out * groups[1], channels_in, k, k])
+    let channels_last = base.device() != Device::flex();
+    let index = expansion_index([channels_in, k], groups, channels_last, &base.device());
+    if channels_last {
+        base.permute(TO_CHANNELS_LAST)
+            .reshape([fields_out, k * k * channels_in])
+            .select(1, index)
+            .reshape([fields_out * groups[1], k, k, channels_in])
+            .permute(FROM_CHANNELS_LAST)
+    } else {
+        base.reshape([fields_out, channels_in * k * k])
+            .select(1, index)
+            .reshape([fields_out * groups[1], channels_in, k, k])
+    }
 }
 
 /// The indices within one base kernel (`channels_in x k x k`, `[channels_in, k]` in
-/// `shape`) that [`expand`] gathers, in order, as a tensor on `device`: [`laid_out`] of
-/// the numbered kernel, worked out on the CPU once per shape and device.
-fn expansion_index(shape: [usize; 2], groups: [usize; 2], device: &Device) -> Tensor<1, Int> {
+/// `shape`, its values laid out channels-last where `channels_last`) that [`expand`]
+/// gathers, in the order its full kernels lie, as a tensor on `device`: [`laid_out`] of the
+/// numbered kernel, worked out on the CPU once per shape, layout and device.
+fn expansion_index(
+    shape: [usize; 2],
+    groups: [usize; 2],
+    channels_last: bool,
+    device: &Device,
+) -> Tensor<1, Int> {
     // Devices compare equal with autodiff on and off: whether it is on is part of the key.
-    type Key = ([usize; 2], [usize; 2], Device, bool);
+    type Key = ([usize; 2], [usize; 2], bool, Device, bool);
     static KNOWN: Mutex<Vec<(Key, Tensor<1, Int>)>> = Mutex::new(Vec::new());
-    let key = (shape, groups, device.clone(), device.is_autodiff());
+    let key = (
+        shape,
+        groups,
+        channels_last,
+        device.clone(),
+        device.is_autodiff(),
+    );
     let mut known = KNOWN
         .lock()
         .unwrap_or_else(|poisoned| poisoned.into_inner());
@@ -70,9 +99,17 @@ fn expansion_index(shape: [usize; 2], groups: [usize; 2], device: &Device) -> Te
     }
     let [channels_in, k] = shape;
     let n = channels_in * k * k;
-    let numbered =
-        Tensor::<1, Int>::arange(0..n as i64, &Device::flex()).reshape([1, channels_in, k, k]);
-    let order: Tensor<1, Int> = laid_out(numbered, groups).reshape([n * groups[1]]);
+    // Each value of a base kernel `[1, channels_in, k, k]` numbered by where it lies.
+    let numbered = Tensor::<1, Int>::arange(0..n as i64, &Device::flex());
+    let full = if channels_last {
+        let numbered = numbered
+            .reshape([1, k, k, channels_in])
+            .permute(FROM_CHANNELS_LAST);
+        laid_out(numbered, groups).permute(TO_CHANNELS_LAST)
+    } else {
+        laid_out(numbered.reshape([1, channels_in, k, k]), groups)
+    };
+    let order: Tensor<1, Int> = full.reshape([n * groups[1]]);
     let index = Tensor::from_data(order.into_data(), device);
     known.push((key, index.clone()));
     index

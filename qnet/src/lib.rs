@@ -14,6 +14,8 @@ pub mod agreement;
 pub mod batch_norm;
 mod channels_last;
 pub mod config;
+#[cfg(feature = "wgpu")]
+pub mod cube_outputs;
 pub mod device;
 pub mod equivariant;
 pub mod error;
@@ -28,6 +30,7 @@ pub mod layers;
 pub mod net;
 pub mod qnets;
 pub mod rotations;
+mod weight_layout;
 
 pub use acting::ActingNets;
 pub use agreement::Difference;

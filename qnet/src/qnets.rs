@@ -13,6 +13,7 @@ use sim::Primitive;
 
 use policy::QMaps;
 
+use crate::channels_last;
 use crate::config::QNetConfig;
 use crate::equivariant;
 use crate::error::QNetError;
@@ -45,6 +46,14 @@ impl QNets {
         self.push.fresh_head(config, &device);
         self.grasp.fresh_head(config, &device);
         self
+    }
+
+    /// These nets with every convolution weight held channels-last in memory (its shape and
+    /// values unchanged), as a GPU convolves it: a
+    /// weight laid out as burn lays it out is copied before each convolution on a GPU. Each
+    /// weight still requires a gradient where it did.
+    pub fn with_weights_channels_last(self) -> Self {
+        channels_last::with_weights_channels_last(self)
     }
 
     /// The device the nets' tensors live on.

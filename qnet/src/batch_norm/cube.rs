@@ -12,14 +12,14 @@
 //! convolution hands its output over, `[n, h, w, c]` read through strides). The input's
 //! gradient is laid out as the input.
 
-use burn::backend::ops::FloatTensorOps;
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
 use burn::cubecl;
-use burn::tensor::{DType, FloatDType, Shape};
+use burn::tensor::{DType, Shape};
 use cubecl::prelude::*;
 use cubecl::{CubeCount, CubeDim};
 
 use super::{NormBackend, composed};
+use crate::cube_outputs::{empty, empty_like};
 
 /// Threads a cube, a power of two.
 const THREADS: usize = 256;
@@ -242,31 +242,6 @@ fn norm_grads_kernel(
             at += step;
         }
     }
-}
-
-/// A contiguous f32 tensor of `shape` on `like`'s device, its values not yet written.
-fn empty(like: &CubeTensor, shape: Shape) -> CubeTensor {
-    CubeBackend::float_empty(shape, &like.device, FloatDType::F32)
-}
-
-/// An f32 tensor of `like`'s shape, its values not yet written, laid out in memory as
-/// `like` is when that is dense (a convolution's output has its channels last, and a
-/// gradient laid out otherwise would be copied back before the convolution's backward pass),
-/// else contiguous.
-fn empty_like(like: &CubeTensor) -> CubeTensor {
-    let (shape, strides) = (like.meta.shape(), like.meta.strides());
-    let rank = shape.num_dims();
-    // The dimensions from the outermost in memory.
-    let mut order: Vec<usize> = (0..rank).collect();
-    if like.is_contiguous_buffer() && like.is_nonoverlapping() {
-        order.sort_by_key(|&d| std::cmp::Reverse(strides[d]));
-    }
-    let stored = empty(like, order.iter().map(|&d| shape[d]).collect());
-    let mut axes = vec![0; rank];
-    for (at, &d) in order.iter().enumerate() {
-        axes[d] = at;
-    }
-    CubeBackend::float_permute(stored, &axes)
 }
 
 /// Whether `t` (`[n, c, h, w]`) holds each plane as one run of values, `stride(3)` apart
