@@ -34,14 +34,10 @@ fn channel_sums<B: Backend>(x: FloatTensor<B>) -> FloatTensor<B> {
     B::float_sum_dims(x, &others)
 }
 
-/// `1 / sqrt(variance + epsilon)`, `[1, c, 1, ...]` for `x`.
-fn inverse_std<B: Backend>(
-    variance: FloatTensor<B>,
-    epsilon: f64,
-    x: &FloatTensor<B>,
-) -> FloatTensor<B> {
+/// `1 / sqrt(variance + epsilon)`, as `variance` is shaped.
+fn inverse_std<B: Backend>(variance: FloatTensor<B>, epsilon: f64) -> FloatTensor<B> {
     let shifted = B::float_add_scalar(variance, Scalar::Float(epsilon));
-    per_channel::<B>(B::float_recip(B::float_sqrt(shifted)), x)
+    B::float_recip(B::float_sqrt(shifted))
 }
 
 /// Mean, then biased variance about it (two passes, as the CPU's loops).
@@ -69,14 +65,13 @@ pub(super) fn train<B: Backend>(
     variance: FloatTensor<B>,
     epsilon: f64,
 ) -> FloatTensor<B> {
-    let scale = B::float_mul(
-        per_channel::<B>(gamma, &x),
-        inverse_std::<B>(variance, epsilon, &x),
-    );
-    let shift = B::float_sub(
-        per_channel::<B>(beta, &x),
-        B::float_mul(per_channel::<B>(mean, &x), scale.clone()),
-    );
+    // Every `[c]` value shaped first: burn's fusion does not join a reshape with the
+    // element-wise operations around it, and arithmetic on the `[c]` values between
+    // reshapes ran as kernels of their own.
+    let [gamma, beta, mean, variance] =
+        [gamma, beta, mean, variance].map(|values| per_channel::<B>(values, &x));
+    let scale = B::float_mul(gamma, inverse_std::<B>(variance, epsilon));
+    let shift = B::float_sub(beta, B::float_mul(mean, scale.clone()));
     B::relu(B::float_add(B::float_mul(x, scale), shift))
 }
 
@@ -93,7 +88,7 @@ pub(super) fn grads<B: Backend>(
     grad: FloatTensor<B>,
 ) -> (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>) {
     let n = count(&x.shape()) as f64;
-    let inv_std = inverse_std::<B>(variance, epsilon, &x);
+    let inv_std = inverse_std::<B>(per_channel::<B>(variance, &x), epsilon);
     let mean = per_channel::<B>(mean, &x);
     let gamma = per_channel::<B>(gamma, &x);
     let dy = B::relu_backward(output, grad);
