@@ -177,14 +177,10 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
     let (mean, variance) =
         <Dispatch as NormBackend>::norm_statistics(x.clone().detach().into_dispatch());
     let [mean, variance]: [Tensor<1>; 2] = [mean, variance].map(Tensor::from_dispatch);
-    let output = Tensor::from_dispatch(<Dispatch as NormBackend>::norm_relu_train(
-        x.into_dispatch(),
-        norm.gamma.val().into_dispatch(),
-        norm.beta.val().into_dispatch(),
-        mean.clone().into_dispatch(),
-        variance.clone().into_dispatch(),
-        norm.epsilon,
-    ));
+    // The running statistics are updated before the normalisation is issued, not after: on
+    // a GPU burn's fusion then joins the normalisation's per-channel arithmetic with the
+    // normalisation itself, where the update's operations, issued between it and the next
+    // layer's, split it into small kernels of its own (results/gpu.md).
     let momentum = norm.momentum;
     let update = |running: Tensor<1>, batch: Tensor<1>| {
         running
@@ -194,10 +190,17 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
             .detach()
     };
     norm.running_mean
-        .update(update(norm.running_mean.value_sync(), mean));
+        .update(update(norm.running_mean.value_sync(), mean.clone()));
     norm.running_var
-        .update(update(norm.running_var.value_sync(), variance));
-    output
+        .update(update(norm.running_var.value_sync(), variance.clone()));
+    Tensor::from_dispatch(<Dispatch as NormBackend>::norm_relu_train(
+        x.into_dispatch(),
+        norm.gamma.val().into_dispatch(),
+        norm.beta.val().into_dispatch(),
+        mean.into_dispatch(),
+        variance.into_dispatch(),
+        norm.epsilon,
+    ))
 }
 
 #[cfg(test)]
