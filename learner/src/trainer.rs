@@ -8,13 +8,13 @@
 //! added. Every other pixel contributes nothing.
 //!
 //! The training step is one computation (targets, losses, weights, the Adam step) whose parts share
-//! the trainer's state, so they stay in one file.
+//! the trainer's state, so they stay in one file; the losses themselves, functions of the
+//! step's values alone, are `crate::loss`.
 
 use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::Transaction;
-use burn::tensor::activation::log_sigmoid;
 use policy::QMaps;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use rand::{RngExt, SeedableRng};
@@ -27,6 +27,7 @@ use crate::checkpoint::SavedNets;
 use crate::config::LearningConfig;
 use crate::error::LearnerError;
 use crate::items::{Item, taught_items};
+use crate::loss::{executed_pixel_loss, outcome_loss};
 use crate::targets::{NextState, double_q_values};
 
 /// One transition to learn from.
@@ -126,8 +127,8 @@ impl Trainer {
     /// On a GPU their convolution weights are first laid out channels-last, as the GPU
     /// convolves them; Adam keeps each parameter laid out as it lies, so no weight is copied
     /// before a convolution or its input's gradient (results/gpu.md, "Weights held
-    /// channels-last"); a rotation-equivariant net's full kernels are gathered from them
-    /// channels-last too (`qnet::equivariant::expand`).
+    /// channels-last in training"); a rotation-equivariant net's full kernels are gathered
+    /// from them channels-last too (`qnet::equivariant::expand`).
     fn hold(&mut self, nets: QNets) {
         self.nets = if self.on_cpu {
             nets
@@ -472,38 +473,4 @@ impl Trainer {
         self.updates = saved.manifest.updates;
         Ok(())
     }
-}
-
-/// The weighted Huber loss of the Q values at the executed pixels against their labels,
-/// summed. Each residual's loss as `c (|r| - c / 2)` with `c = min(|r|, delta)`: `r^2 / 2`
-/// within delta, `delta (|r| - delta / 2)` past it, as burn's `HuberLoss`, whose two-sided
-/// clamp and selection made its forward 12 kernels on a GPU where this one makes 7.
-pub fn executed_pixel_loss(
-    q: Tensor<1>,
-    labels: &[f32],
-    weights: &[f32],
-    huber_delta: f32,
-) -> Tensor<1> {
-    let size = (q.clone() - per_item(labels, &q)).abs();
-    let capped = size.clone().clamp_max(huber_delta);
-    let huber = capped.clone() * (size - capped.mul_scalar(0.5));
-    (huber * per_item(weights, &q)).sum()
-}
-
-/// The weighted cross-entropy of the outcome logits at the executed pixels against
-/// `succeeded` (1 or 0 each), summed.
-pub fn outcome_loss(logits: Tensor<1>, succeeded: &[f32], weights: &[f32]) -> Tensor<1> {
-    let y = per_item(succeeded, &logits);
-    let x = logits;
-    // -(y log sigmoid(x) + (1 - y) log sigmoid(-x)), without forming sigmoid(x).
-    let entropy = -(log_sigmoid(x.clone()) * y.clone() + log_sigmoid(-x.clone()) * (-y + 1.0));
-    (entropy * per_item(weights, &x)).sum()
-}
-
-/// One value per item of `like`, as a tensor on its device.
-fn per_item(values: &[f32], like: &Tensor<1>) -> Tensor<1> {
-    Tensor::from_data(
-        TensorData::new(values.to_vec(), like.dims()),
-        &like.device(),
-    )
 }

@@ -49,9 +49,9 @@ impl QNets {
     }
 
     /// These nets with every convolution weight held channels-last in memory (its shape and
-    /// values unchanged), as a GPU convolves it: a
-    /// weight laid out as burn lays it out is copied before each convolution on a GPU. Each
-    /// weight still requires a gradient where it did.
+    /// values unchanged), as a GPU convolves it: a weight laid out as burn lays it out is
+    /// copied before each convolution on a GPU. Each weight still requires a gradient where
+    /// it did.
     pub fn with_weights_channels_last(self) -> Self {
         channels_last::with_weights_channels_last(self)
     }
