@@ -509,8 +509,9 @@ fn the_im2col_weight_gradient_is_the_hosts_in_fewer_kernels_than_taps() {
     }
 }
 
-/// The batch norm's statistics and its gradients (qnet::batch_norm) on the GPU are a
-/// kernel each, a cube a channel, and must give the CPU's loops' values: for an input laid
+/// The batch norm's statistics (the running ones' update with them) and its gradients
+/// (qnet::batch_norm) on the GPU are a kernel each, a cube a channel, and must give the
+/// CPU's loops' values: for an input laid
 /// out contiguously and for one laid out channels last, as a convolution hands it over, with
 /// fewer values a channel than a cube's threads and with several times as many, and with
 /// more channels than a cube takes side by side.
@@ -536,6 +537,8 @@ fn the_batch_norms_statistics_and_gradients_are_the_cpus_in_a_kernel_each() {
         };
         let len = n * c * h * w;
         let (x, gamma) = (wave(len, 0.37, 2.0), wave(c, 0.9, 1.0));
+        // The running mean and variance before the statistics' update.
+        let running = [wave(c, 0.7, 0.2), wave(c, 0.5, 0.1)];
         let (output, grad) = (wave(len, 0.23, 1.0), wave(len, 0.11, 1.0));
         // (statistics, gradients) and each call's kernels on `device`.
         let run = |device: &Device| {
@@ -563,8 +566,11 @@ fn the_batch_norms_statistics_and_gradients_are_the_cpus_in_a_kernel_each() {
                     .into_dispatch(),
                 false => tensor(&x, vec![n, c, h, w]),
             };
-            let ((mean, variance), statistics_kernels) =
-                qnet::kernels::count(device, || Dispatch::norm_statistics(x_t()));
+            let ((mean, variance, running_mean, running_variance), statistics_kernels) =
+                qnet::kernels::count(device, || {
+                    let [mean, variance] = running.each_ref().map(|r| channel(r));
+                    Dispatch::norm_statistics(x_t(), mean, variance, 0.1)
+                });
             let ((x_grad, gamma_grad, beta_grad), grads_kernels) =
                 qnet::kernels::count(device, || {
                     Dispatch::norm_relu_train_grads(
@@ -585,7 +591,7 @@ fn the_batch_norms_statistics_and_gradients_are_the_cpus_in_a_kernel_each() {
                     .unwrap()
             };
             (
-                [mean, variance].map(values),
+                [mean, variance, running_mean, running_variance].map(values),
                 [x_grad, gamma_grad, beta_grad].map(values),
                 [statistics_kernels, grads_kernels],
             )
@@ -595,6 +601,8 @@ fn the_batch_norms_statistics_and_gradients_are_the_cpus_in_a_kernel_each() {
         for (what, got, want) in [
             ("mean", &statistics[0], &want_statistics[0]),
             ("variance", &statistics[1], &want_statistics[1]),
+            ("the running mean", &statistics[2], &want_statistics[2]),
+            ("the running variance", &statistics[3], &want_statistics[3]),
             ("the input's gradient", &grads[0], &want_grads[0]),
             ("gamma's gradient", &grads[1], &want_grads[1]),
             ("beta's gradient", &grads[2], &want_grads[2]),

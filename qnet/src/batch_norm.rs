@@ -22,6 +22,7 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, backend_extension};
+use burn::module::RunningState;
 use burn::nn::BatchNorm;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
@@ -32,13 +33,32 @@ use burn::tensor::activation::relu;
 /// view into one stacked buffer cost a device a copy and a slice per use.)
 #[backend_extension(Flex, Autodiff, Cube: cfg(feature = "wgpu"), Fusion: cfg(feature = "wgpu"))]
 pub trait NormBackend: Backend {
-    /// The batch mean and biased variance of each channel, `[c]` each; no gradient.
-    #[fusion(meta = |x| {
+    /// The batch mean and biased variance of each channel, and the running mean and
+    /// variance moved toward them as burn's [`BatchNorm`] moves them (`running (1 -
+    /// momentum) + batch momentum`), `[c]` each; no gradient. (The update is part of the
+    /// statistics' operation: on a GPU, as operations of its own, it was a kernel a norm,
+    /// and issued after the normalisation it split the normalisation's per-channel
+    /// arithmetic into small kernels of its own; results/gpu.md.)
+    #[fusion(meta = |x, _running_mean, _running_variance, _momentum| {
         let channels = burn::backend::fusion::custom::TensorSpec::new([x.shape[1]].into(), x.dtype);
-        (channels.clone(), channels)
+        (channels.clone(), channels.clone(), channels.clone(), channels)
     })]
-    fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        composed::statistics::<Self>(x)
+    fn norm_statistics(
+        x: FloatTensor<Self>,
+        running_mean: FloatTensor<Self>,
+        running_variance: FloatTensor<Self>,
+        momentum: f64,
+    ) -> (
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+    ) {
+        composed::with_running::<Self>(
+            composed::statistics::<Self>(x),
+            [running_mean, running_variance],
+            momentum,
+        )
     }
 
     /// `relu((x - mean) / sqrt(variance + epsilon) * gamma + beta)` with the batch's
@@ -73,11 +93,35 @@ pub trait NormBackend: Backend {
     }
 }
 
+/// [`NormBackend::norm_statistics`]'s: the batch's mean and variance, then the running mean
+/// and variance after the update.
+pub type Statistics<B> = (
+    FloatTensor<B>,
+    FloatTensor<B>,
+    FloatTensor<B>,
+    FloatTensor<B>,
+);
+
 impl<B: Backend + NormBackend, C: CheckpointStrategy> NormBackend for Autodiff<B, C> {
-    fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
+    fn norm_statistics(
+        x: FloatTensor<Self>,
+        running_mean: FloatTensor<Self>,
+        running_variance: FloatTensor<Self>,
+        momentum: f64,
+    ) -> Statistics<Self> {
         // Statistics take no gradient: nothing flows back through them.
-        let (mean, variance) = B::norm_statistics(x.into_primitive());
-        (Self::from_inner(mean), Self::from_inner(variance))
+        let (mean, variance, running_mean, running_variance) = B::norm_statistics(
+            x.into_primitive(),
+            running_mean.into_primitive(),
+            running_variance.into_primitive(),
+            momentum,
+        );
+        (
+            Self::from_inner(mean),
+            Self::from_inner(variance),
+            Self::from_inner(running_mean),
+            Self::from_inner(running_variance),
+        )
     }
 
     fn norm_relu_train(
@@ -174,31 +218,30 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
         return relu(norm.forward(x));
     }
     let device = x.device();
-    let (mean, variance) =
-        <Dispatch as NormBackend>::norm_statistics(x.clone().detach().into_dispatch());
-    let [mean, variance]: [Tensor<1>; 2] = [mean, variance].map(Tensor::from_dispatch);
-    // The running statistics are updated before the normalisation is issued, not after: on
-    // a GPU burn's fusion then joins the normalisation's per-channel arithmetic with the
-    // normalisation itself, where the update's operations, issued between it and the next
-    // layer's, split it into small kernels of its own (results/gpu.md).
-    let momentum = norm.momentum;
-    let update = |running: Tensor<1>, batch: Tensor<1>| {
-        running
+    let running = |state: &RunningState<Tensor<1>>| {
+        state
+            .value_sync()
             .to_device(&device)
-            .mul_scalar(1.0 - momentum)
-            .add(batch.detach().mul_scalar(momentum))
             .detach()
+            .into_dispatch()
     };
+    let (mean, variance, running_mean, running_variance) =
+        <Dispatch as NormBackend>::norm_statistics(
+            x.clone().detach().into_dispatch(),
+            running(&norm.running_mean),
+            running(&norm.running_var),
+            norm.momentum,
+        );
     norm.running_mean
-        .update(update(norm.running_mean.value_sync(), mean.clone()));
+        .update(Tensor::from_dispatch(running_mean));
     norm.running_var
-        .update(update(norm.running_var.value_sync(), variance.clone()));
+        .update(Tensor::from_dispatch(running_variance));
     Tensor::from_dispatch(<Dispatch as NormBackend>::norm_relu_train(
         x.into_dispatch(),
         norm.gamma.val().into_dispatch(),
         norm.beta.val().into_dispatch(),
-        mean.into_dispatch(),
-        variance.into_dispatch(),
+        mean,
+        variance,
         norm.epsilon,
     ))
 }
@@ -223,9 +266,13 @@ mod tests {
         [values(x), values(gamma), values(beta)].concat()
     }
 
-    /// Mean and variance, one after the other.
-    fn statistic_values((mean, variance): (FloatTensor<Flex>, FloatTensor<Flex>)) -> Vec<f32> {
-        [values(mean), values(variance)].concat()
+    /// The batch's mean and variance and the running ones, one after another.
+    fn statistic_values(
+        (mean, variance, running_mean, running_variance): Statistics<Flex>,
+    ) -> Vec<f32> {
+        [mean, variance, running_mean, running_variance]
+            .map(values)
+            .concat()
     }
 
     #[test]
@@ -240,11 +287,30 @@ mod tests {
         let gamma = || flex_tensor(wave(c, 0.9, 1.0), [c]);
         let beta = || flex_tensor(wave(c, 1.3, 1.0), [c]);
         let grad = || flex_tensor(wave(n * c * h * h, 0.11, 1.0), [n, c, h, h]);
-        let epsilon = 1e-5;
+        let running = || [wave(c, 0.7, 0.2), wave(c, 0.5, 0.1)].map(|r| flex_tensor(r, [c]));
+        let (epsilon, momentum) = (1e-5, 0.1);
         // burn's generic batch norm in training and its backward, with the ReLU's.
         let burns = Flex::batch_norm_train(x(), gamma(), beta(), epsilon);
         let (mean, variance) = (burns.mean, burns.variance);
-        let statistics = || (mean.clone(), variance.clone());
+        // burn's `BatchNorm` moves its running statistics by `running (1 - m) + batch m`.
+        let moved = |running: FloatTensor<Flex>, batch: &FloatTensor<Flex>| {
+            let batch = values(batch.clone());
+            let moved = (values(running).iter().zip(&batch))
+                .map(|(&r, &b)| r * (1.0 - momentum) + b * momentum)
+                .collect();
+            flex_tensor(moved, [c])
+        };
+        let statistics = || {
+            let [running_mean, running_variance] = running();
+            let running_mean = moved(running_mean, &mean);
+            let running_variance = moved(running_variance, &variance);
+            (
+                mean.clone(),
+                variance.clone(),
+                running_mean,
+                running_variance,
+            )
+        };
         let output = Flex::relu(burns.output);
         let backward = Flex::batch_norm_train_backward(
             x(),
@@ -260,7 +326,10 @@ mod tests {
             grad_values((backward.x_grad, backward.gamma_grad, backward.beta_grad)),
         );
         let loops = (
-            statistic_values(Flex::norm_statistics(x())),
+            statistic_values({
+                let [running_mean, running_variance] = running();
+                Flex::norm_statistics(x(), running_mean, running_variance, momentum as f64)
+            }),
             values(Flex::norm_relu_train(
                 x(),
                 gamma(),
@@ -280,7 +349,11 @@ mod tests {
             )),
         );
         let composed = (
-            statistic_values(composed::statistics::<Flex>(x())),
+            statistic_values(composed::with_running::<Flex>(
+                composed::statistics::<Flex>(x()),
+                running(),
+                momentum as f64,
+            )),
             values(composed::train::<Flex>(
                 x(),
                 gamma(),

@@ -10,6 +10,8 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Scalar, TensorMetadata};
 use burn::tensor::Shape;
 
+use super::Statistics;
+
 /// Values per channel of a tensor of `shape`: its elements over its channels.
 fn count(shape: &Shape) -> usize {
     shape.num_elements() / shape[1]
@@ -52,6 +54,24 @@ pub(super) fn statistics<B: Backend>(x: FloatTensor<B>) -> (FloatTensor<B>, Floa
     let squares = B::float_mul(centred.clone(), centred);
     let variance = channel_sums::<B>(B::float_mul_scalar(squares, share));
     (flat::<B>(mean), flat::<B>(variance))
+}
+
+/// The batch's statistics with the running ones moved toward them, as burn's `BatchNorm`
+/// moves them: `running (1 - momentum) + batch momentum`.
+pub(super) fn with_running<B: Backend>(
+    (mean, variance): (FloatTensor<B>, FloatTensor<B>),
+    [running_mean, running_variance]: [FloatTensor<B>; 2],
+    momentum: f64,
+) -> Statistics<B> {
+    let moved = |running, batch: &FloatTensor<B>| {
+        B::float_add(
+            B::float_mul_scalar(running, Scalar::Float(1.0 - momentum)),
+            B::float_mul_scalar(batch.clone(), Scalar::Float(momentum)),
+        )
+    };
+    let running_mean = moved(running_mean, &mean);
+    let running_variance = moved(running_variance, &variance);
+    (mean, variance, running_mean, running_variance)
 }
 
 /// The normalisation with the batch's statistics and the ReLU, as one affine map per

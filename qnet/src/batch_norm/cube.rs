@@ -18,7 +18,7 @@ use burn::tensor::{DType, Shape};
 use cubecl::prelude::*;
 use cubecl::{CubeCount, CubeDim};
 
-use super::{NormBackend, composed};
+use super::{NormBackend, Statistics, composed};
 use crate::cube_outputs::{empty, empty_like};
 
 /// Threads a cube, a power of two.
@@ -127,12 +127,20 @@ fn dy_and_x_hat(
 }
 
 /// The mean and biased variance of each channel of `x` (`[n, c, h, w]`, its planes
-/// `x.stride(3)` a value), in two passes over its values.
+/// `x.stride(3)` a value), in two passes over its values, and the running mean and variance
+/// moved toward them (`running keep + batch take`).
 #[cube(launch)]
+#[allow(clippy::too_many_arguments)]
 fn norm_statistics_kernel(
     x: &Tensor<f32>,
+    running_mean: &Tensor<f32>,
+    running_variance: &Tensor<f32>,
     mean: &mut Tensor<f32>,
     variance: &mut Tensor<f32>,
+    running_mean_out: &mut Tensor<f32>,
+    running_variance_out: &mut Tensor<f32>,
+    keep: f32,
+    take: f32,
     #[comptime] channels_last: bool,
     #[comptime] threads: usize,
 ) {
@@ -146,6 +154,10 @@ fn norm_statistics_kernel(
     if channel < x.shape(1) && first == 0 {
         mean[channel] = centre;
         variance[channel] = spread;
+        running_mean_out[channel] =
+            running_mean[channel * running_mean.stride(0)] * keep + centre * take;
+        running_variance_out[channel] =
+            running_variance[channel * running_variance.stride(0)] * keep + spread * take;
     }
 }
 
@@ -269,25 +281,44 @@ fn launch_shape(x: &CubeTensor) -> (CubeCount, CubeDim, bool) {
 }
 
 impl NormBackend for CubeBackend {
-    fn norm_statistics(x: CubeTensor) -> (CubeTensor, CubeTensor) {
-        if x.dtype != DType::F32 || !planes_in_runs(&x) {
-            return composed::statistics::<Self>(x);
+    fn norm_statistics(
+        x: CubeTensor,
+        running_mean: CubeTensor,
+        running_variance: CubeTensor,
+        momentum: f64,
+    ) -> Statistics<Self> {
+        let running = [running_mean, running_variance];
+        if [&x, &running[0], &running[1]]
+            .iter()
+            .any(|t| t.dtype != DType::F32)
+            || !planes_in_runs(&x)
+        {
+            let statistics = composed::statistics::<Self>(x);
+            return composed::with_running::<Self>(statistics, running, momentum);
         }
         let (cubes, cube_dim, channels_last) = launch_shape(&x);
         let channels = Shape::from([x.meta.shape()[1]]);
-        let [mean, variance] = [empty(&x, channels.clone()), empty(&x, channels)];
+        let [mean, variance, running_mean_out, running_variance_out] =
+            [(); 4].map(|_| empty(&x, channels.clone()));
         let client = x.client.clone();
+        let [running_mean, running_variance] = running;
         norm_statistics_kernel::launch(
             &client,
             cubes,
             cube_dim,
             x.into_tensor_arg(),
+            running_mean.into_tensor_arg(),
+            running_variance.into_tensor_arg(),
             mean.clone().into_tensor_arg(),
             variance.clone().into_tensor_arg(),
+            running_mean_out.clone().into_tensor_arg(),
+            running_variance_out.clone().into_tensor_arg(),
+            (1.0 - momentum) as f32,
+            momentum as f32,
             channels_last,
             THREADS,
         );
-        (mean, variance)
+        (mean, variance, running_mean_out, running_variance_out)
     }
 
     fn norm_relu_train_grads(

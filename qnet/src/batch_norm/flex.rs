@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use crate::fresh::planes_from;
 use crate::gemm_conv::flex_tensor;
 
-use super::{NormBackend, composed};
+use super::{NormBackend, Statistics, composed};
 
 /// One channel's values across the batch: `x` as `[n, c, m]`, channel `k`.
 fn channel(x: &[f32], c: usize, m: usize, k: usize) -> impl Iterator<Item = &[f32]> {
@@ -68,9 +68,19 @@ fn layout(x: &FloatTensor<Flex>) -> Option<[usize; 2]> {
 }
 
 impl NormBackend for Flex {
-    fn norm_statistics(x: FloatTensor<Self>) -> (FloatTensor<Self>, FloatTensor<Self>) {
+    fn norm_statistics(
+        x: FloatTensor<Self>,
+        running_mean: FloatTensor<Self>,
+        running_variance: FloatTensor<Self>,
+        momentum: f64,
+    ) -> Statistics<Self> {
+        let running = [running_mean, running_variance];
         let Some([c, m]) = layout(&x) else {
-            return composed::statistics::<Self>(x);
+            return composed::with_running::<Self>(
+                composed::statistics::<Self>(x),
+                running,
+                momentum,
+            );
         };
         let x = x.to_contiguous();
         let values: &[f32] = x.storage();
@@ -78,7 +88,12 @@ impl NormBackend for Flex {
             .into_par_iter()
             .map(|k| moments(values, c, m, k))
             .unzip();
-        (flex_tensor(mean, vec![c]), flex_tensor(variance, vec![c]))
+        // The update on `[c]` values: burn's operations, as the composed operation's.
+        composed::with_running::<Self>(
+            (flex_tensor(mean, vec![c]), flex_tensor(variance, vec![c])),
+            running,
+            momentum,
+        )
     }
 
     fn norm_relu_train(
