@@ -765,10 +765,16 @@ fn the_learner_bench_reports_the_adapter_and_its_agreement_with_the_cpu() {
     let diff = figures["max_rel_diff_vs_cpu_112"].as_f64().unwrap();
     assert!(diff <= f64::from(AGREEMENT), "{diff}");
     assert!(figures["batch_train_speedup_vs_cpu_112"].as_f64().unwrap() > 0.0);
-    // The kernels each timed call launches, counted as CubeCL issues them.
-    for call in ["infer_16rot", "train_step", "batch_train", "publish"] {
+    // The kernels each timed call launches, counted as CubeCL issues them. A publication
+    // reads the weights as they lie, so it may launch none.
+    for (call, least) in [
+        ("infer_16rot", 1.0),
+        ("train_step", 1.0),
+        ("batch_train", 1.0),
+        ("publish", 0.0),
+    ] {
         let kernels = figures[format!("{call}_kernels_112")].as_f64();
-        assert!(kernels.is_some_and(|k| k >= 1.0), "{call}: {kernels:?}");
+        assert!(kernels.is_some_and(|k| k >= least), "{call}: {kernels:?}");
     }
     // The host's CPU a step, by part: each part's threads found by their names.
     for part in ["fusion", "server", "other"] {

@@ -22,7 +22,7 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, backend_extension};
-use burn::module::RunningState;
+use burn::module::{Module, ModuleMapper, Param, RunningState};
 use burn::nn::BatchNorm;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
@@ -232,10 +232,8 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
             running(&norm.running_var),
             norm.momentum,
         );
-    norm.running_mean
-        .update(Tensor::from_dispatch(running_mean));
-    norm.running_var
-        .update(Tensor::from_dispatch(running_variance));
+    set(&norm.running_mean, running_mean);
+    set(&norm.running_var, running_variance);
     Tensor::from_dispatch(<Dispatch as NormBackend>::norm_relu_train(
         x.into_dispatch(),
         norm.gamma.val().into_dispatch(),
@@ -244,6 +242,25 @@ pub fn forward_relu(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
         variance,
         norm.epsilon,
     ))
+}
+
+/// Sets `state`'s value. burn's [`RunningState::update`] keeps a value aside per thread
+/// until a `value_sync` averages the threads' values (a division even for one: on a GPU a
+/// kernel a state each step); a net trains on one thread. A clone of a running state shares
+/// its value, and mapping one sets the value (burn's `Module::map` for `RunningState`).
+fn set(state: &RunningState<Tensor<1>>, value: FloatTensor<Dispatch>) {
+    /// A mapper that puts its value in place of the one float tensor it meets.
+    struct Put(Option<FloatTensor<Dispatch>>);
+
+    impl ModuleMapper for Put {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let (id, _, mapper) = param.consume();
+            let value = self.0.take().expect("a running state holds one tensor");
+            Param::from_mapped_value(id, Tensor::from_dispatch(value), mapper)
+        }
+    }
+
+    let _ = state.clone().map(&mut Put(Some(value)));
 }
 
 #[cfg(test)]

@@ -151,12 +151,15 @@ fn batch_norm_and_relu_in_training_equal_burns_output_gradients_and_running_stat
     let x = Tensor::<4>::random([3, 5, 7, 7], Distribution::Default, &device).mul_scalar(3.0);
     let run = |ours: bool| {
         let norm = BatchNormConfig::new(5).init(&device);
-        let x = x.clone().require_grad();
-        let y = if ours {
-            batch_norm::forward_relu(&norm, x.clone())
-        } else {
-            relu(norm.forward(x.clone()))
+        let forward = |x: Tensor<4>| match ours {
+            true => batch_norm::forward_relu(&norm, x),
+            false => relu(norm.forward(x)),
         };
+        // A pass before, so the running statistics are moved twice, the second time from
+        // what the first left.
+        let _ = forward(x.clone().mul_scalar(0.5).add_scalar(1.0));
+        let x = x.clone().require_grad();
+        let y = forward(x.clone());
         // A loss whose gradient differs per pixel, so every term of the backward counts,
         // and is not zero where the ReLU cut the value, so its mask counts too.
         let grads = (y.clone() * (y.clone() + x.clone().detach()))
