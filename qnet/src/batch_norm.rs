@@ -4,11 +4,12 @@
 //! statistics, and the ReLU then made and read another copy each way. On the CPU backend
 //! the statistics, the normalisation with its ReLU and the three gradients are plain loops
 //! over each channel's planes; on a GPU (wgpu) the statistics and the gradients are a
-//! kernel each (threads summing each channel in shared memory), and the normalisation with
-//! its ReLU burn's element-wise operations, which burn's fusion joins with what is around
-//! them. Every batch norm of the nets is followed by a ReLU. The module keeps burn's
-//! [`BatchNorm`] (its parameters, running statistics and their update), so checkpoints and
-//! the inference path do not change.
+//! kernel each (threads summing each channel in shared memory; the statistics' kernel moves
+//! the running statistics too), and the normalisation with its ReLU burn's element-wise
+//! operations, which burn's fusion joins with what is around them. Every batch norm of the
+//! nets is followed by a ReLU. The module keeps burn's [`BatchNorm`] (its parameters and
+//! running statistics, moved as burn moves them), so checkpoints and the inference path do
+//! not change.
 
 mod composed;
 #[cfg(feature = "wgpu")]
