@@ -6,7 +6,7 @@
 
 use burn::module::Module;
 use burn::nn::loss::BinaryCrossEntropyLossConfig;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use qnet::{Geometry, NetInput, QNetConfig, QNets};
 use rand::{RngExt, SeedableRng};
@@ -123,7 +123,7 @@ pub fn pretrain(
     let mut nets = nets.to_device(&device).train();
     let geometry = Geometry::new(camera.grid().side(), net_config);
     // Adam with burn's default factors, no weight decay.
-    let mut optimiser = ModuleOptimizer::from(Adam::new(0.9, 0.999, 0.0));
+    let mut optimiser = Adam::new(0.9, 0.999, 0.0);
     let loss_of = BinaryCrossEntropyLossConfig::new()
         .with_logits(true)
         .init(&device);

@@ -12,7 +12,7 @@
 //! step's values alone, are `crate::loss`.
 
 use burn::module::Module;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use burn::tensor::Transaction;
 use policy::QMaps;
@@ -83,7 +83,7 @@ pub struct Trainer {
     /// computes them: `nets` as they were after the last multiple of `target_update_every`
     /// updates (or when their weights were last loaded).
     target: Option<QNets>,
-    optimiser: ModuleOptimizer,
+    optimiser: Adam,
     geometry: Geometry,
     config: LearningConfig,
     trained: TrainedNet,
@@ -103,7 +103,7 @@ impl Trainer {
         trained: TrainedNet,
         device: &Device,
     ) -> Self {
-        let optimiser = ModuleOptimizer::from(Adam::of(config));
+        let optimiser = Adam::of(config);
         let on_cpu = device.clone().without_autodiff() == Device::flex();
         let nets = nets.to_device(&device.clone().autodiff()).train();
         let average = (config.polyak_rate < 1.0).then(|| nets.valid());
