@@ -92,22 +92,19 @@ impl Adam {
         }
         for (steps, group) in by_steps {
             let factors = self.factors(steps + 1, lr);
-            let mut group = group.into_iter();
-            loop {
-                let chunk: Vec<Stepping> = group.by_ref().take(TENSORS_AN_OPERATION).collect();
-                if chunk.is_empty() {
-                    break;
-                }
-                let ids: Vec<ParamId> = chunk.iter().map(|s| s.id).collect();
-                for (id, (param, first, second)) in
-                    ids.into_iter().zip(step_tensors(chunk, factors))
-                {
-                    let moments = Moments {
-                        steps: steps + 1,
-                        first,
-                        second,
-                    };
-                    self.moments.insert(id, moments);
+            let mut group = group.into_iter().peekable();
+            while group.peek().is_some() {
+                let chunk = group.by_ref().take(TENSORS_AN_OPERATION).collect();
+                for (id, (param, first, second)) in step_tensors(chunk, factors) {
+                    let steps = steps + 1;
+                    self.moments.insert(
+                        id,
+                        Moments {
+                            steps,
+                            first,
+                            second,
+                        },
+                    );
                     stepped.insert(id, param);
                 }
             }
@@ -136,10 +133,11 @@ type Stepped = (
     FloatTensor<Dispatch>,
 );
 
-/// The new parameter and moments of each of at most [`TENSORS_AN_OPERATION`] tensors: one
-/// operation for a full four, one a tensor for fewer.
-fn step_tensors(chunk: Vec<Stepping>, f: StepFactors) -> Vec<Stepped> {
-    match <[Stepping; TENSORS_AN_OPERATION]>::try_from(chunk) {
+/// The new parameter and moments of each of at most [`TENSORS_AN_OPERATION`] tensors, by
+/// parameter: one operation for a full four, one a tensor for fewer.
+fn step_tensors(chunk: Vec<Stepping>, f: StepFactors) -> Vec<(ParamId, Stepped)> {
+    let ids: Vec<ParamId> = chunk.iter().map(|s| s.id).collect();
+    let stepped = match <[Stepping; TENSORS_AN_OPERATION]>::try_from(chunk) {
         Ok([a, b, c, d]) => {
             let (a, b, c, d) = Dispatch::adam_step_4(
                 a.param,
@@ -166,7 +164,8 @@ fn step_tensors(chunk: Vec<Stepping>, f: StepFactors) -> Vec<Stepped> {
             .into_iter()
             .map(|s| Dispatch::adam_step(s.param, s.grad, s.moments.first, s.moments.second, f))
             .collect(),
-    }
+    };
+    ids.into_iter().zip(stepped).collect()
 }
 
 /// Finds the parameters `grads` holds a gradient for, with their moments (zero for a
