@@ -715,6 +715,63 @@ fn the_batch_norms_statistics_and_gradients_are_the_cpus_in_a_kernel_each() {
     }
 }
 
+/// The values at the executed pixels (qnet::plane_sums: each item's planes times its
+/// weights, summed) and their gradient on the GPU are a kernel each and must give the CPU's
+/// values: for maps laid out channels last, as the head convolution hands them over, and
+/// for two heads.
+#[test]
+fn the_weighted_plane_sums_and_their_gradient_are_the_cpus_in_a_kernel_each() {
+    use burn::backend::Dispatch;
+    use qnet::plane_sums::PlaneSumBackend;
+
+    let _turn = device_turn();
+    let gpu = gpu();
+    for [n, heads, s] in [[8, 1, 14], [5, 2, 9]] {
+        // (sums, gradient, each call's kernels)
+        let run = |device: &Device| {
+            // The maps stored [n, s, s, heads] and read through strides as [n, heads, s, s].
+            let maps = wavy([n, s, s, heads], 0.0, device).permute([0, 3, 1, 2]);
+            let weights = wavy([n, 1, s, s], 1.0, device);
+            let grad = wavy([n, heads], 2.0, device);
+            let (sums, sums_kernels) = qnet::kernels::count(device, || {
+                Dispatch::weighted_plane_sums(
+                    maps.clone().into_dispatch(),
+                    weights.clone().into_dispatch(),
+                )
+            });
+            let (maps_grad, grad_kernels) = qnet::kernels::count(device, || {
+                Dispatch::weighted_plane_sums_grad(
+                    maps.clone().into_dispatch(),
+                    weights.into_dispatch(),
+                    grad.into_dispatch(),
+                )
+            });
+            let maps_grad = Tensor::<4>::from_dispatch(maps_grad);
+            let values = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+            (
+                values(Tensor::<2>::from_dispatch(sums).unsqueeze()),
+                values(maps_grad),
+                [sums_kernels, grad_kernels],
+            )
+        };
+        let (sums, maps_grad, kernels) = run(&gpu);
+        let (want_sums, want_grad, _) = run(&Device::flex());
+        for (what, got, want) in [
+            ("sums", &sums, &want_sums),
+            ("gradient", &maps_grad, &want_grad),
+        ] {
+            let d = Difference::between(got, want);
+            println!("plane sums {:?}, {what}, wgpu vs cpu: {d:?}", [n, heads, s]);
+            assert!(d.max_rel <= 1e-5, "{what}: {d:?}");
+        }
+        for (call, launches) in ["sums", "gradient"].iter().zip(kernels) {
+            let launches = launches.expect("a wgpu device counts its launches");
+            println!("plane sums {call}: {:?}", launches.by_name());
+            assert_eq!(launches.total(), 1, "{call}: {:?}", launches.by_name());
+        }
+    }
+}
+
 #[test]
 fn a_checkpoint_saved_on_one_backend_loads_on_the_other() {
     let _turn = device_turn();

@@ -28,6 +28,7 @@ pub mod input;
 pub mod kernels;
 pub mod layers;
 pub mod net;
+pub mod plane_sums;
 pub mod qnets;
 pub mod rotations;
 mod weight_layout;

@@ -21,6 +21,7 @@ use crate::geometry::Geometry;
 use crate::host_copy::copied_to;
 use crate::input::NetInput;
 use crate::net::PrimitiveNet;
+use crate::plane_sums;
 use crate::rotations::{RotatedQMaps, every_rotation, q_maps, try_map};
 
 /// The push and the grasp Q-networks.
@@ -125,13 +126,12 @@ impl QNets {
             geometry.add_pixel_weights(turn, pixel, item);
         }
         let weights = Tensor::<4>::from_data(TensorData::new(weights, [n, 1, s, s]), &low.device());
-        let values = (low * weights).sum_dim(3).sum_dim(2);
+        let values = plane_sums::weighted_plane_sums(low, weights);
         if heads == 1 {
             // No slice: its backward fills a zero gradient and assigns into it (two kernels
             // on a GPU) for what is the whole tensor.
             return Ok((values.reshape([n]), None));
         }
-        let values = values.reshape([n, heads]);
         let head = |h: usize| values.clone().slice([0..n, h..h + 1]).reshape([n]);
         Ok((head(0), Some(head(1))))
     }
