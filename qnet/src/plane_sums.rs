@@ -1,11 +1,11 @@
 //! The values at chosen pixels of low-resolution maps, as one operation: the sum over each
 //! item's plane of its maps weighted by that item's weights (`qnets::QNets::at_pixels`
 //! folds the rotation back and the upsampling to a pixel into at most 16 weights an item).
-//! Composed from burn's operations, a product, two sums and their backward (a fill, products
-//! and a copy to the convolution's layout) were about eight small kernels of a GPU training
-//! step; on a GPU (wgpu) the sums are one kernel and the gradient another, written laid out
-//! as the maps lie (a convolution's output, channels last), which is how the head
-//! convolution's backward reads it. On the CPU the operation is burn's, as before.
+//! Composed from burn's operations, the product, the two sums and their backward (fills,
+//! products, sums) were about ten small kernels of a GPU training step; on a GPU (wgpu) the sums
+//! are one kernel and the gradient another, written laid out as the maps lie (a
+//! convolution's output, channels last), as the head convolution's backward reads them. On
+//! the CPU the operation is burn's, as before, so the trained figures do not move.
 
 #[cfg(feature = "wgpu")]
 mod cube;
