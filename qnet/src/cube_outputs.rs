@@ -1,11 +1,17 @@
-//! Output tensors for this workspace's own CubeCL kernels (the batch norm's, the learner's
-//! Adam): allocated unwritten, laid out as an input is, so a kernel's threads walk its
-//! inputs and outputs in one order and the convolutions after it find their operands laid
-//! out as they read them.
+//! Output tensors for this workspace's own CubeCL kernels (the batch norm's, the plane
+//! sums', the learner's Adam): allocated unwritten, laid out as an input is, so a kernel's
+//! threads walk its inputs and outputs in one order and the convolutions after it find their
+//! operands laid out as they read them. And which inputs the kernels take.
 
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
-use burn::tensor::{FloatDType, Shape};
+use burn::tensor::{DType, FloatDType, Shape};
+
+/// Whether the kernels take these tensors: they read and write f32 values (elsewhere each
+/// falls back to burn's operations composed).
+pub fn all_f32<'a>(tensors: impl IntoIterator<Item = &'a CubeTensor>) -> bool {
+    tensors.into_iter().all(|t| t.dtype == DType::F32)
+}
 
 /// A contiguous f32 tensor of `shape` on `like`'s device, its values not yet written.
 pub fn empty(like: &CubeTensor, shape: Shape) -> CubeTensor {

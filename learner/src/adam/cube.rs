@@ -5,11 +5,10 @@
 
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
 use burn::cubecl;
-use burn::tensor::DType;
 use cubecl::prelude::*;
 use cubecl::{CubeCount, CubeDim};
 
-use qnet::cube_outputs::empty_like;
+use qnet::cube_outputs::{all_f32, empty_like};
 
 use super::{AdamBackend, StepFactors, composed};
 
@@ -151,11 +150,6 @@ fn with_outputs([p, g, m, v]: [CubeTensor; 4]) -> ([CubeTensor; 7], [CubeTensor;
     let outputs = [(); 3].map(|_| empty_like(&p));
     let [p_out, m_out, v_out] = outputs.clone();
     ([p, g, m, v, p_out, m_out, v_out], outputs)
-}
-
-/// Whether the kernels take these tensors: f32 values.
-fn all_f32<'a>(tensors: impl IntoIterator<Item = &'a CubeTensor>) -> bool {
-    tensors.into_iter().all(|t| t.dtype == DType::F32)
 }
 
 /// Cubes along a row for a tensor of `len` elements.

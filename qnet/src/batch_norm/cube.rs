@@ -14,12 +14,12 @@
 
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
 use burn::cubecl;
-use burn::tensor::{DType, Shape};
+use burn::tensor::Shape;
 use cubecl::prelude::*;
 use cubecl::{CubeCount, CubeDim};
 
 use super::{NormBackend, Statistics, composed};
-use crate::cube_outputs::{empty, empty_like};
+use crate::cube_outputs::{all_f32, empty, empty_like};
 
 /// Threads a cube, a power of two.
 const THREADS: usize = 256;
@@ -288,11 +288,7 @@ impl NormBackend for CubeBackend {
         momentum: f64,
     ) -> Statistics<Self> {
         let running = [running_mean, running_variance];
-        if [&x, &running[0], &running[1]]
-            .iter()
-            .any(|t| t.dtype != DType::F32)
-            || !planes_in_runs(&x)
-        {
+        if !all_f32([&x, &running[0], &running[1]]) || !planes_in_runs(&x) {
             let statistics = composed::statistics::<Self>(x);
             return composed::with_running::<Self>(statistics, running, momentum);
         }
@@ -333,9 +329,7 @@ impl NormBackend for CubeBackend {
         // (The input's gradient, laid out as `x` or contiguously, has its planes in runs
         // whenever `x` has.)
         if ![&x, &output, &grad].iter().all(|t| planes_in_runs(t))
-            || [&x, &gamma, &mean, &variance, &output, &grad]
-                .iter()
-                .any(|t| t.dtype != DType::F32)
+            || !all_f32([&x, &gamma, &mean, &variance, &output, &grad])
         {
             return composed::grads::<Self>(x, gamma, mean, variance, epsilon, output, grad);
         }

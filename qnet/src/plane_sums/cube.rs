@@ -4,12 +4,12 @@
 
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
 use burn::cubecl;
-use burn::tensor::{DType, Shape};
+use burn::tensor::Shape;
 use cubecl::prelude::*;
 use cubecl::{CubeCount, CubeDim};
 
 use super::{PlaneSumBackend, composed};
-use crate::cube_outputs::{empty, empty_like};
+use crate::cube_outputs::{all_f32, empty, empty_like};
 
 /// Threads a cube.
 const THREADS: u32 = 256;
@@ -51,11 +51,6 @@ fn plane_sums_grad_kernel(weights: &Tensor<f32>, grad: &Tensor<f32>, maps_grad: 
     let g = grad[item * grad.stride(0) + head * grad.stride(1)];
     let w = weights[item * weights.stride(0) + y * weights.stride(2) + x * weights.stride(3)];
     maps_grad[i] = g * w;
-}
-
-/// Whether the kernels take these tensors: f32 values.
-fn all_f32<const N: usize>(tensors: [&CubeTensor; N]) -> bool {
-    tensors.iter().all(|t| t.dtype == DType::F32)
 }
 
 /// Cubes for `len` threads.
