@@ -15,7 +15,7 @@
 #[cfg(feature = "wgpu")]
 mod cube;
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, Flex, Scalar, backend_extension};
@@ -86,25 +86,23 @@ impl Adam {
         let found = gather.found;
         let mut stepped = HashMap::with_capacity(found.len());
         // Tensors step together when they have taken as many steps (in a run, all of them).
-        let mut by_steps: HashMap<i32, Vec<Stepping>> = HashMap::new();
+        let mut by_steps: BTreeMap<i32, Vec<Stepping>> = BTreeMap::new();
         for s in found {
             by_steps.entry(s.moments.steps).or_default().push(s);
         }
         for (steps, group) in by_steps {
-            let factors = self.factors(steps + 1, lr);
+            let steps = steps + 1;
+            let factors = self.factors(steps, lr);
             let mut group = group.into_iter().peekable();
             while group.peek().is_some() {
                 let chunk = group.by_ref().take(TENSORS_AN_OPERATION).collect();
                 for (id, (param, first, second)) in step_tensors(chunk, factors) {
-                    let steps = steps + 1;
-                    self.moments.insert(
-                        id,
-                        Moments {
-                            steps,
-                            first,
-                            second,
-                        },
-                    );
+                    let moments = Moments {
+                        steps,
+                        first,
+                        second,
+                    };
+                    self.moments.insert(id, moments);
                     stepped.insert(id, param);
                 }
             }

@@ -1,7 +1,7 @@
-//! Adam's steps on a GPU (CubeCL): a thread an element, writing the parameter and its moments
-//! laid out as the parameter lies (a convolution's weight held channels-last by `Trainer`
-//! stays so, as the GPU convolves it) and reading every input through its strides. Four
-//! tensors' steps are one launch, a row of cubes a tensor.
+//! Adam's steps on a GPU (CubeCL): a thread an element (several past a row's cubes), writing
+//! the parameter and its moments laid out as the parameter lies (a convolution's weight held
+//! channels-last by `Trainer` stays so, as the GPU convolves it) and reading every input
+//! through its strides. Four tensors' steps are one launch, a row of cubes a tensor.
 
 use burn::backend::wgpu::{CubeBackend, CubeTensor};
 use burn::cubecl;
@@ -28,11 +28,13 @@ struct Factors {
     lr: f32,
 }
 
-/// Element `i` of the outputs' memory (laid out alike, densely), found in each input laid out
-/// as it is: neighbouring threads write neighbouring values. Nothing past the last element.
+/// A thread's elements of one tensor's step: element `i` of the outputs' memory (laid out
+/// alike, densely), found in each input laid out as it is, for `i` from the thread's place
+/// along its row of cubes, a row's threads apart: neighbouring threads write neighbouring
+/// values, and a row capped at the cubes a device takes still covers any tensor.
 #[cube]
 #[allow(clippy::too_many_arguments)]
-fn step_element(
+fn step_elements(
     param: &Tensor<f32>,
     grad: &Tensor<f32>,
     moment_1: &Tensor<f32>,
@@ -40,10 +42,11 @@ fn step_element(
     param_out: &mut Tensor<f32>,
     moment_1_out: &mut Tensor<f32>,
     moment_2_out: &mut Tensor<f32>,
-    i: usize,
     f: &Factors,
 ) {
-    if i < param_out.len() {
+    let mut i = (CUBE_POS_X * CUBE_DIM + UNIT_POS) as usize;
+    let row_threads = (CUBE_COUNT_X * CUBE_DIM) as usize;
+    while i < param_out.len() {
         let mut at_p = 0usize;
         let mut at_g = 0usize;
         let mut at_m = 0usize;
@@ -63,13 +66,8 @@ fn step_element(
         param_out[i] = p - update * f.lr;
         moment_1_out[i] = m;
         moment_2_out[i] = v;
+        i += row_threads;
     }
-}
-
-/// The element of a tensor a thread steps: along the cubes of a row.
-#[cube]
-fn element() -> usize {
-    (CUBE_POS_X * CUBE_DIM + UNIT_POS) as usize
 }
 
 /// One tensor's step.
@@ -85,7 +83,7 @@ fn adam_kernel(
     moment_2_out: &mut Tensor<f32>,
     f: Factors,
 ) {
-    step_element(
+    step_elements(
         param,
         grad,
         moment_1,
@@ -93,7 +91,6 @@ fn adam_kernel(
         param_out,
         moment_1_out,
         moment_2_out,
-        element(),
         &f,
     );
 }
@@ -132,15 +129,14 @@ fn adam_4_kernel(
     v3_out: &mut Tensor<f32>,
     f: Factors,
 ) {
-    let i = element();
     if CUBE_POS_Y == 0 {
-        step_element(p0, g0, m0, v0, p0_out, m0_out, v0_out, i, &f);
+        step_elements(p0, g0, m0, v0, p0_out, m0_out, v0_out, &f);
     } else if CUBE_POS_Y == 1 {
-        step_element(p1, g1, m1, v1, p1_out, m1_out, v1_out, i, &f);
+        step_elements(p1, g1, m1, v1, p1_out, m1_out, v1_out, &f);
     } else if CUBE_POS_Y == 2 {
-        step_element(p2, g2, m2, v2, p2_out, m2_out, v2_out, i, &f);
+        step_elements(p2, g2, m2, v2, p2_out, m2_out, v2_out, &f);
     } else {
-        step_element(p3, g3, m3, v3, p3_out, m3_out, v3_out, i, &f);
+        step_elements(p3, g3, m3, v3, p3_out, m3_out, v3_out, &f);
     }
 }
 
@@ -152,9 +148,10 @@ fn with_outputs([p, g, m, v]: [CubeTensor; 4]) -> ([CubeTensor; 7], [CubeTensor;
     ([p, g, m, v, p_out, m_out, v_out], outputs)
 }
 
-/// Cubes along a row for a tensor of `len` elements.
+/// Cubes along a row for a tensor of `len` elements: a thread an element, at most the 65,535
+/// cubes a dimension that every device takes (threads then take several).
 fn row(len: usize) -> u32 {
-    len.div_ceil(THREADS as usize) as u32
+    len.div_ceil(THREADS as usize).min(u16::MAX as usize) as u32
 }
 
 /// The kernels' factors argument.
